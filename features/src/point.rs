@@ -1,0 +1,185 @@
+//! The point: one 3-D point (paper section IV-E), e.g. a ceiling lamp or a landmark.
+
+use serde::{Deserialize, Serialize};
+use slam_core::nalgebra::{DMatrix, Vector3};
+use slam_core::{CoordBlock, Coordinates, Error, Feature, Growth, Result, Subspace, stack_rows};
+
+/// x and y of the point.
+pub const HORIZONTAL: Subspace = Subspace {
+    name: "horizontal",
+    rows: 2,
+    description: "x and y of the point: revealed by a planar range-bearing sensor, or with \
+                  the height by triangulating bearings from two or more views",
+};
+
+/// z of the point.
+pub const HEIGHT: Subspace = Subspace {
+    name: "height",
+    rows: 1,
+    description: "z of the point: revealed by triangulating camera bearings (a ceiling lamp)",
+};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum PointSubspace {
+    Horizontal,
+    Height,
+}
+
+impl PointSubspace {
+    fn spec(self) -> Subspace {
+        match self {
+            PointSubspace::Horizontal => HORIZONTAL,
+            PointSubspace::Height => HEIGHT,
+        }
+    }
+
+    /// Rows of B; B is the identity at full dimension (Table II), so B~ = B^T.
+    fn rows(self) -> DMatrix<f64> {
+        match self {
+            PointSubspace::Horizontal => {
+                DMatrix::from_row_slice(2, 3, &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+            }
+            PointSubspace::Height => DMatrix::from_row_slice(1, 3, &[0.0, 0.0, 1.0]),
+        }
+    }
+}
+
+/// A point feature, `x_f = {x^3D}` (Table I).
+///
+/// Its M-space at full dimension is the identity (Table II). This crate splits it into
+/// `"horizontal"` (x, y) and `"height"` (z) so that a planar sensor, which cannot observe z,
+/// carries a 2-D point without an unobservable row: the M-space idea applied to the point.
+/// A lamp triangulated by a camera gains both at once (dimension 3, as in the paper).
+///
+/// ```
+/// use slam_features::Point;
+/// use slam_core::{Feature, nalgebra::Vector3};
+/// let lamp = Point::full(Vector3::new(2.0, 1.0, 2.5)).unwrap();
+/// assert_eq!(lamp.mspace_dim(), 3);
+/// let landmark = Point::planar(Vector3::new(2.0, 1.0, 0.0)).unwrap();
+/// assert_eq!(landmark.mspace_dim(), 2);
+/// ```
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "PointRepr", into = "PointRepr")]
+pub struct Point {
+    coordinates: Coordinates,
+    active: Vec<PointSubspace>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PointRepr {
+    position: Vector3<f64>,
+    active: Vec<PointSubspace>,
+}
+
+impl From<Point> for PointRepr {
+    fn from(point: Point) -> Self {
+        PointRepr {
+            position: point.position(),
+            active: point.active,
+        }
+    }
+}
+
+impl TryFrom<PointRepr> for Point {
+    type Error = Error;
+    fn try_from(repr: PointRepr) -> Result<Self> {
+        let mut point = Point::new(repr.position)?;
+        for s in repr.active {
+            point.activate(s.spec().name)?;
+        }
+        Ok(point)
+    }
+}
+
+impl Point {
+    /// A tentative point (M-space dimension 0).
+    pub fn new(position: Vector3<f64>) -> Result<Self> {
+        Ok(Point {
+            coordinates: Coordinates::new(vec![CoordBlock::Point3(position)])?,
+            active: Vec::new(),
+        })
+    }
+
+    /// A point with its full M-space (dimension 3, Table I).
+    pub fn full(position: Vector3<f64>) -> Result<Self> {
+        let mut point = Point::new(position)?;
+        point.active = vec![PointSubspace::Horizontal, PointSubspace::Height];
+        Ok(point)
+    }
+
+    /// A point observed by a planar sensor: x and y in its M-space, z held fixed.
+    pub fn planar(position: Vector3<f64>) -> Result<Self> {
+        let mut point = Point::new(position)?;
+        point.active = vec![PointSubspace::Horizontal];
+        Ok(point)
+    }
+
+    /// The position.
+    pub fn position(&self) -> Vector3<f64> {
+        match self.coordinates.blocks()[0] {
+            CoordBlock::Point3(p) => p,
+            _ => Vector3::from_element(f64::NAN),
+        }
+    }
+}
+
+#[typetag::serde(name = "point")]
+impl Feature for Point {
+    fn kind(&self) -> &'static str {
+        "point"
+    }
+
+    fn coordinates(&self) -> &Coordinates {
+        &self.coordinates
+    }
+
+    fn set_coordinates(&mut self, coordinates: Coordinates) -> Result<()> {
+        if !matches!(coordinates.blocks(), [CoordBlock::Point3(_)]) {
+            return Err(Error::InvalidArgument(
+                "a point's coordinates are one 3-D point".into(),
+            ));
+        }
+        self.coordinates = coordinates;
+        Ok(())
+    }
+
+    fn active_subspaces(&self) -> Vec<Subspace> {
+        self.active.iter().map(|s| s.spec()).collect()
+    }
+
+    fn growth_options(&self) -> Vec<Subspace> {
+        [PointSubspace::Horizontal, PointSubspace::Height]
+            .into_iter()
+            .filter(|s| !self.active.contains(s))
+            .map(PointSubspace::spec)
+            .collect()
+    }
+
+    fn activate(&mut self, subspace: &str) -> Result<Growth> {
+        let wanted = [PointSubspace::Horizontal, PointSubspace::Height]
+            .into_iter()
+            .find(|s| s.spec().name == subspace && !self.active.contains(s))
+            .ok_or_else(|| Error::Growth {
+                feature: "point",
+                subspace: subspace.to_string(),
+                reason: format!("not available now (active {:?})", self.active),
+            })?;
+        let before = self.mspace_dim();
+        self.active.push(wanted);
+        Ok(Growth {
+            subspace: wanted.spec(),
+            rows: before..before + wanted.spec().rows,
+        })
+    }
+
+    fn projection(&self) -> Result<DMatrix<f64>> {
+        stack_rows(3, &self.active, |s| Ok(s.rows()))
+    }
+
+    fn dual(&self) -> Result<DMatrix<f64>> {
+        Ok(self.projection()?.transpose())
+    }
+}

@@ -1,0 +1,97 @@
+//! Every feature type runs the slam-core conformance suite over random geometry, including
+//! near-degenerate geometry, which must be an error and never a NaN.
+
+use proptest::prelude::*;
+use slam_core::nalgebra::{Vector2, Vector3};
+use slam_core::testing::{ConformanceParams, check_feature};
+use slam_core::{Feature, test_feature_conformance};
+use slam_features::{HLine, Point, Pole, Wall};
+
+test_feature_conformance!(
+    wall_conforms,
+    Wall::new(Vector2::new(1.0, 2.0), Vector2::new(4.0, -1.0)).unwrap()
+);
+test_feature_conformance!(
+    hline_conforms,
+    HLine::new(Vector3::new(1.0, 2.0, 2.4), Vector3::new(-3.0, 0.5, 2.4)).unwrap()
+);
+test_feature_conformance!(
+    pole_conforms,
+    Pole::new(0.25, Vector2::new(-7.0, 3.0)).unwrap()
+);
+test_feature_conformance!(
+    point_conforms,
+    Point::new(Vector3::new(2.0, -1.0, 2.7)).unwrap()
+);
+
+/// Lengths from well below the minimum up to 40 m, with extra weight near zero.
+fn length() -> impl Strategy<Value = f64> {
+    prop_oneof![0.0..2e-3, 2e-3..0.1, 0.1..40.0]
+}
+
+fn angle() -> impl Strategy<Value = f64> {
+    -std::f64::consts::PI..std::f64::consts::PI
+}
+
+fn coordinate() -> impl Strategy<Value = f64> {
+    -60.0..60.0
+}
+
+fn assert_conforms(feature: &dyn Feature) -> Result<(), TestCaseError> {
+    let report = check_feature(feature, &ConformanceParams::default())
+        .map_err(|failure| TestCaseError::fail(failure.to_string()))?;
+    prop_assert!(!report.configurations.is_empty());
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    #[test]
+    fn walls_conform_or_refuse(x in coordinate(), y in coordinate(), l in length(), a in angle()) {
+        let start = Vector2::new(x, y);
+        let end = start + l * Vector2::new(a.cos(), a.sin());
+        match Wall::new(start, end) {
+            Ok(wall) => {
+                prop_assert!((end - start).norm() >= Wall::MIN_LENGTH);
+                assert_conforms(&wall)?;
+            }
+            Err(e) => {
+                prop_assert!((end - start).norm() < Wall::MIN_LENGTH, "refused a {l} m wall: {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn hlines_conform_or_refuse(
+        x in coordinate(), y in coordinate(), z in -5.0..10.0f64, l in length(), a in angle(),
+    ) {
+        let start = Vector3::new(x, y, z);
+        let end = start + l * Vector3::new(a.cos(), a.sin(), 0.0);
+        match HLine::new(start, end) {
+            Ok(line) => assert_conforms(&line)?,
+            Err(e) => prop_assert!((end - start).norm() < HLine::MIN_LENGTH, "refused: {e}"),
+        }
+    }
+
+    #[test]
+    fn poles_conform_or_refuse(x in coordinate(), y in coordinate(), r in prop_oneof![-1.0..1e-3, 1e-3..3.0]) {
+        match Pole::new(r, Vector2::new(x, y)) {
+            Ok(pole) => assert_conforms(&pole)?,
+            Err(e) => prop_assert!(r < Pole::MIN_RADIUS, "refused r = {r}: {e}"),
+        }
+    }
+
+    #[test]
+    fn points_conform(x in coordinate(), y in coordinate(), z in -10.0..10.0f64) {
+        assert_conforms(&Point::new(Vector3::new(x, y, z)).unwrap())?;
+    }
+
+    #[test]
+    fn non_finite_geometry_is_an_error(bad in prop_oneof![Just(f64::NAN), Just(f64::INFINITY), Just(f64::NEG_INFINITY)]) {
+        prop_assert!(Wall::new(Vector2::new(bad, 0.0), Vector2::new(1.0, 0.0)).is_err());
+        prop_assert!(HLine::new(Vector3::new(0.0, 0.0, bad), Vector3::new(1.0, 0.0, 2.0)).is_err());
+        prop_assert!(Pole::new(bad, Vector2::new(1.0, 0.0)).is_err());
+        prop_assert!(Point::new(Vector3::new(0.0, bad, 0.0)).is_err());
+    }
+}

@@ -1,0 +1,61 @@
+//! The estimator trait: what every SLAM algorithm (EKF, FastSLAM, post-processing) offers, so
+//! that the `slam` command can swap one for another by configuration (paper section V: "the
+//! M-space feature representation is orthogonal to the choice of SLAM algorithm").
+
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+use crate::error::Result;
+use crate::map::{FeatureMap, RowOwner};
+use crate::measurement::DynMeasurementModel;
+use crate::motion::MotionModel;
+use crate::pose::{Pose3, RobotPose};
+
+/// One measurement taken by one sensor.
+#[derive(Debug)]
+pub struct Observation {
+    /// Where the sensor sits on the robot, `x_r,s` (eq. 17).
+    pub robot_from_sensor: Pose3,
+    /// The measured values with their model.
+    pub measurement: Box<dyn DynMeasurementModel>,
+    /// The true landmark identity when the data provide it (known data association).
+    pub landmark_id: Option<u64>,
+}
+
+/// What one update step did.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct UpdateReport {
+    /// Observations matched to existing features and used in the update.
+    pub associated: usize,
+    /// Observations that started new (tentative) features.
+    pub new_features: usize,
+    /// Observations rejected (gated out, or failed to linearize).
+    pub rejected: usize,
+    /// Normalized innovation squared of each associated observation, with its degrees of
+    /// freedom, for consistency checks (NIS).
+    pub nis: Vec<(f64, usize)>,
+}
+
+/// A SLAM estimator over robot poses of type `P`, written against the slam-core traits only.
+pub trait Estimator<P: RobotPose> {
+    /// Short name used in configuration and outputs, e.g. `"ekf"`.
+    fn name(&self) -> &'static str;
+
+    /// Moves the robot by one dead-reckoning increment (eqs. 25-27 for an EKF).
+    fn predict(&mut self, motion: &dyn MotionModel<P>) -> Result<()>;
+
+    /// Incorporates the observations taken at the current pose (eqs. 28-32 for an EKF).
+    fn update(&mut self, observations: &[Observation]) -> Result<UpdateReport>;
+
+    /// The current robot pose estimate.
+    fn pose(&self) -> P;
+
+    /// Covariance of the robot pose (`P::DIM x P::DIM`).
+    fn pose_covariance(&self) -> DMatrix<f64>;
+
+    /// The current map (for a particle filter: the map of the most likely particle).
+    fn map(&self) -> &FeatureMap;
+
+    /// Covariance of one row group of the map's M-space perturbations, if the estimator has it.
+    fn row_covariance(&self, owner: RowOwner) -> Option<DMatrix<f64>>;
+}

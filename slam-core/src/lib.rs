@@ -1,0 +1,55 @@
+//! # slam-core
+//!
+//! The M-space feature representation (Folkesson, Jensfelt & Christensen, "The M-Space
+//! Feature Representation for SLAM", IEEE T-RO 23(5), 2007) as Rust traits and generic math:
+//!
+//! - [`Coordinates`]: a feature's coordinates `x_f`, blocks of 3-D points, 2-D points and
+//!   scalars (section IV).
+//! - [`Pose2`] / [`Pose3`] with the compound operators and their Jacobians; [`RobotPose`]
+//!   gives `J_sr` and `J_ss` (eqs. 17, 20).
+//! - [`MapToSensor`]: the generic map-to-sensor transform (eqs. 7-9, appendix eq. 34) with
+//!   `J_os` and `J_of` (eq. 19).
+//! - [`Feature`]: B and its dual B~ (eqs. 10-12), a growing M-space, perturbations
+//!   `x_f += B~ dx_p` (eq. 24), shared blocks (section VI, eq. 33).
+//! - [`MeasurementModel`]: the innovation `eta(x_o, v)` with `J_eta_v`, `J_eta_o` and `C_v`
+//!   (eq. 16); [`linearize`] gives `J_eta,state = J_eta_o (J_or | J_of B~)` (eqs. 21, 30).
+//! - [`FeatureMap`]: features with shared blocks; one set of rows per shared block.
+//! - [`MotionModel`] (eqs. 25-27) and [`Estimator`].
+//! - [`testing`]: the conformance suite every feature and measurement model runs.
+//!
+//! `nalgebra` is re-exported so that every crate uses one version.
+
+#![warn(missing_docs)]
+
+mod coords;
+mod error;
+mod estimator;
+mod feature;
+mod map;
+mod measurement;
+mod motion;
+mod pose;
+pub mod testing;
+mod transform;
+
+pub use nalgebra;
+
+pub use coords::{BlockKind, CoordBlock, Coordinates};
+pub use error::{Error, Result, ensure_finite};
+pub use estimator::{Estimator, Observation, UpdateReport};
+pub use feature::{Feature, Growth, Subspace, downcast_feature, downcast_feature_mut, stack_rows};
+pub use map::{FeatureId, FeatureMap, MapLinearization, RowOwner, SharedBlock, SharedBlockId};
+pub use measurement::{
+    DynMeasurementModel, Innovation, LinearizedMeasurement, MeasurementModel, innovation_at,
+    linearize,
+};
+pub use motion::{MotionModel, MotionPrediction};
+pub use pose::{Pose2, Pose3, RobotPose, SensorPose, wrap_angle};
+pub use transform::{MapToSensor, SensorFrameCoordinates};
+
+/// Re-exported so that feature implementations outside this crate can use
+/// `#[slam_core::typetag::serde]` without their own dependency.
+pub use typetag;
+
+/// Re-exported for `dyn_clone::clone_box` on `dyn Feature`.
+pub use dyn_clone;

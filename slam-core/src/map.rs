@@ -1,0 +1,388 @@
+//! A map of features with shared coordinate blocks (paper section VI).
+//!
+//! The map owns the features and the shared blocks. It tells an estimator which M-space rows
+//! exist ([`RowOwner`]): each feature's own rows, and one set of identity rows per shared block,
+//! so that the end point of wall A and the start point of wall B "map to the same rows of the
+//! covariance matrix". Updating a shared block moves it in every feature that holds it.
+
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+use crate::coords::CoordBlock;
+use crate::error::{Error, Result, ensure_finite};
+use crate::feature::{Feature, Growth};
+use crate::measurement::{DynMeasurementModel, LinearizedMeasurement, linearize};
+use crate::pose::{Pose3, RobotPose};
+
+/// Identifies a feature in a [`FeatureMap`]; never reused after removal.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct FeatureId(pub usize);
+
+/// Identifies a shared coordinate block in a [`FeatureMap`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct SharedBlockId(pub usize);
+
+/// Who owns a group of M-space rows: a feature (its own rows) or a shared block (identity rows).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub enum RowOwner {
+    /// The own M-space rows of a feature, `mspace_dim()` of them.
+    Feature(FeatureId),
+    /// The rows of a shared block, as many as the block has coordinates.
+    Shared(SharedBlockId),
+}
+
+/// A coordinate block held by several features (a wall corner).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SharedBlock {
+    /// The block's value in the map frame.
+    pub value: CoordBlock,
+    /// The features holding it, with the block index in each.
+    pub members: Vec<(FeatureId, usize)>,
+}
+
+/// The columns of `J_eta,state` (eq. 30) for one measurement, keyed by row owner.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MapLinearization {
+    /// The linearized measurement (robot and sensor-offset columns, innovation, covariance).
+    pub measurement: LinearizedMeasurement,
+    /// `(owner, columns)` for the feature's own rows (if any) and each shared block it holds.
+    pub columns: Vec<(RowOwner, DMatrix<f64>)>,
+}
+
+/// Features and their shared blocks.
+///
+/// ```
+/// use slam_core::FeatureMap;
+/// let map = FeatureMap::new();
+/// assert_eq!(map.len(), 0);
+/// ```
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(try_from = "FeatureMapRepr")]
+pub struct FeatureMap {
+    features: Vec<Option<Box<dyn Feature>>>,
+    /// Per feature, per block: the shared block it is linked to.
+    links: Vec<Vec<Option<SharedBlockId>>>,
+    shared: Vec<Option<SharedBlock>>,
+}
+
+/// The serialized form, validated into a [`FeatureMap`].
+#[derive(Deserialize)]
+struct FeatureMapRepr {
+    features: Vec<Option<Box<dyn Feature>>>,
+    links: Vec<Vec<Option<SharedBlockId>>>,
+    shared: Vec<Option<SharedBlock>>,
+}
+
+impl TryFrom<FeatureMapRepr> for FeatureMap {
+    type Error = Error;
+    fn try_from(repr: FeatureMapRepr) -> Result<Self> {
+        let map = FeatureMap {
+            features: repr.features,
+            links: repr.links,
+            shared: repr.shared,
+        };
+        map.check_links()?;
+        map.check_consistency()?;
+        Ok(map)
+    }
+}
+
+impl FeatureMap {
+    /// An empty map.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Number of features.
+    pub fn len(&self) -> usize {
+        self.features.iter().filter(|f| f.is_some()).count()
+    }
+
+    /// True when the map holds no feature.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Adds a feature; its blocks start unshared.
+    pub fn insert(&mut self, feature: Box<dyn Feature>) -> Result<FeatureId> {
+        let blocks = feature.coordinates().num_blocks();
+        if (0..blocks).any(|k| feature.is_shared(k)) {
+            return Err(Error::Sharing(
+                "insert features unshared; share blocks through FeatureMap::share".into(),
+            ));
+        }
+        self.features.push(Some(feature));
+        self.links.push(vec![None; blocks]);
+        Ok(FeatureId(self.features.len() - 1))
+    }
+
+    /// The feature `id`.
+    pub fn get(&self, id: FeatureId) -> Result<&dyn Feature> {
+        self.features
+            .get(id.0)
+            .and_then(|f| f.as_deref())
+            .ok_or(Error::UnknownId {
+                what: "feature",
+                id: id.0,
+            })
+    }
+
+    /// Removes a feature that holds no shared block.
+    pub fn remove(&mut self, id: FeatureId) -> Result<Box<dyn Feature>> {
+        self.get(id)?;
+        if self.links[id.0].iter().any(Option::is_some) {
+            return Err(Error::Sharing(format!(
+                "feature {} holds a shared block; it cannot be removed alone",
+                id.0
+            )));
+        }
+        self.features[id.0].take().ok_or(Error::UnknownId {
+            what: "feature",
+            id: id.0,
+        })
+    }
+
+    /// All features with their ids.
+    pub fn iter(&self) -> impl Iterator<Item = (FeatureId, &dyn Feature)> {
+        self.features
+            .iter()
+            .enumerate()
+            .filter_map(|(i, f)| f.as_deref().map(|f| (FeatureId(i), f)))
+    }
+
+    /// The shared block `id`.
+    pub fn shared_block(&self, id: SharedBlockId) -> Result<&SharedBlock> {
+        self.shared
+            .get(id.0)
+            .and_then(Option::as_ref)
+            .ok_or(Error::UnknownId {
+                what: "shared block",
+                id: id.0,
+            })
+    }
+
+    /// All shared blocks with their ids.
+    pub fn shared_blocks(&self) -> impl Iterator<Item = (SharedBlockId, &SharedBlock)> {
+        self.shared
+            .iter()
+            .enumerate()
+            .filter_map(|(i, b)| b.as_ref().map(|b| (SharedBlockId(i), b)))
+    }
+
+    /// For each block of feature `id`, the shared block it is linked to.
+    pub fn links(&self, id: FeatureId) -> Result<&[Option<SharedBlockId>]> {
+        self.get(id)?;
+        Ok(&self.links[id.0])
+    }
+
+    /// The row groups that a measurement of feature `id` touches, with their sizes:
+    /// the feature's own rows (if it has any) and each shared block it holds.
+    pub fn row_owners(&self, id: FeatureId) -> Result<Vec<(RowOwner, usize)>> {
+        let feature = self.get(id)?;
+        let mut owners = Vec::new();
+        if feature.mspace_dim() > 0 {
+            owners.push((RowOwner::Feature(id), feature.mspace_dim()));
+        }
+        for (k, link) in self.links[id.0].iter().enumerate() {
+            if let Some(shared) = link {
+                owners.push((
+                    RowOwner::Shared(*shared),
+                    feature.coordinates().blocks()[k].dim(),
+                ));
+            }
+        }
+        Ok(owners)
+    }
+
+    /// Makes one block shared by several features (a corner of two walls) with the given
+    /// value: each member re-parameterizes its own rows ([`Feature::share_block`], eq. 33)
+    /// and takes the value. All or nothing: on error the map is unchanged.
+    pub fn share(
+        &mut self,
+        members: &[(FeatureId, usize)],
+        value: CoordBlock,
+    ) -> Result<SharedBlockId> {
+        ensure_finite(value.as_slice(), "shared block value")?;
+        if members.is_empty() {
+            return Err(Error::Sharing(
+                "a shared block needs at least one member".into(),
+            ));
+        }
+        let mut updated = Vec::with_capacity(members.len());
+        for (i, &(id, block)) in members.iter().enumerate() {
+            if members[..i].iter().any(|&(other, _)| other == id) {
+                return Err(Error::Sharing(format!("feature {} listed twice", id.0)));
+            }
+            let feature = self.get(id)?;
+            let current = feature
+                .coordinates()
+                .block(block)
+                .ok_or_else(|| Error::Sharing(format!("feature {} has no block {block}", id.0)))?;
+            if current.kind() != value.kind() {
+                return Err(Error::BlockKindMismatch {
+                    index: block,
+                    expected: current.kind(),
+                    got: value.kind(),
+                });
+            }
+            if self.links[id.0][block].is_some() {
+                return Err(Error::Sharing(format!(
+                    "block {block} of feature {} is already shared",
+                    id.0
+                )));
+            }
+            let mut candidate = dyn_clone::clone_box(feature);
+            candidate.set_block(block, value)?;
+            candidate.share_block(block)?;
+            updated.push(candidate);
+        }
+        let shared_id = SharedBlockId(self.shared.len());
+        for (&(id, block), feature) in members.iter().zip(updated) {
+            self.features[id.0] = Some(feature);
+            self.links[id.0][block] = Some(shared_id);
+        }
+        self.shared.push(Some(SharedBlock {
+            value,
+            members: members.to_vec(),
+        }));
+        Ok(shared_id)
+    }
+
+    /// Grows feature `id` by the named subspace ([`Feature::activate`]).
+    pub fn activate(&mut self, id: FeatureId, subspace: &str) -> Result<Growth> {
+        self.get(id)?;
+        let feature = self.features[id.0].as_deref_mut().ok_or(Error::UnknownId {
+            what: "feature",
+            id: id.0,
+        })?;
+        feature.activate(subspace)
+    }
+
+    /// Applies an estimator's update: `x_f += B~ dx_p` for every owner listed (eq. 24). Own
+    /// perturbations are applied with each feature's B~ at its pre-update coordinates, then
+    /// shared blocks move in every member. All or nothing: on error the map is unchanged.
+    pub fn apply(&mut self, perturbations: &[(RowOwner, DVector<f64>)]) -> Result<()> {
+        let mut features: std::collections::BTreeMap<usize, Box<dyn Feature>> = Default::default();
+        let mut shared_values = std::collections::BTreeMap::new();
+        for (owner, dx) in perturbations {
+            if let RowOwner::Feature(id) = owner {
+                let feature = features
+                    .entry(id.0)
+                    .or_insert(dyn_clone::clone_box(self.get(*id)?));
+                feature.apply_perturbation(dx)?;
+            }
+        }
+        for (owner, dx) in perturbations {
+            if let RowOwner::Shared(id) = owner {
+                let shared = self.shared_block(*id)?;
+                if dx.len() != shared.value.dim() {
+                    return Err(Error::DimensionMismatch {
+                        what: "shared block perturbation".into(),
+                        expected: shared.value.dim(),
+                        got: dx.len(),
+                    });
+                }
+                let mut value = shared_values.get(&id.0).copied().unwrap_or(shared.value);
+                for (v, d) in value.as_mut_slice().iter_mut().zip(dx.iter()) {
+                    *v += d;
+                }
+                ensure_finite(value.as_slice(), "shared block after update")?;
+                for &(member, block) in &shared.members {
+                    let feature = features
+                        .entry(member.0)
+                        .or_insert(dyn_clone::clone_box(self.get(member)?));
+                    feature.set_block(block, value)?;
+                }
+                shared_values.insert(id.0, value);
+            }
+        }
+        for (index, feature) in features {
+            self.features[index] = Some(feature);
+        }
+        for (index, value) in shared_values {
+            if let Some(shared) = self.shared[index].as_mut() {
+                shared.value = value;
+            }
+        }
+        Ok(())
+    }
+
+    /// Linearizes a measurement of feature `id` and files the columns of `J_eta,state` by row
+    /// owner (eq. 30 with the shared rows of section VI).
+    pub fn linearize<P: RobotPose>(
+        &self,
+        id: FeatureId,
+        measurement: &dyn DynMeasurementModel,
+        world_from_robot: &P,
+        robot_from_sensor: &Pose3,
+    ) -> Result<MapLinearization> {
+        let feature = self.get(id)?;
+        let mut lin = linearize(measurement, feature, world_from_robot, robot_from_sensor)?;
+        let mut columns = Vec::with_capacity(1 + lin.d_eta_d_shared.len());
+        if feature.mspace_dim() > 0 {
+            columns.push((RowOwner::Feature(id), lin.d_eta_d_own.clone()));
+        }
+        for (block, d) in std::mem::take(&mut lin.d_eta_d_shared) {
+            let shared = self.links[id.0][block].ok_or_else(|| {
+                Error::Sharing(format!(
+                    "feature {} says block {block} is shared but the map has no link",
+                    id.0
+                ))
+            })?;
+            columns.push((RowOwner::Shared(shared), d.clone()));
+            lin.d_eta_d_shared.push((block, d));
+        }
+        Ok(MapLinearization {
+            measurement: lin,
+            columns,
+        })
+    }
+
+    /// Checks that links, sharing flags and shared-block member lists agree.
+    fn check_links(&self) -> Result<()> {
+        if self.links.len() != self.features.len() {
+            return Err(Error::Sharing(
+                "one link list per feature is required".into(),
+            ));
+        }
+        for (index, (feature, links)) in self.features.iter().zip(&self.links).enumerate() {
+            let Some(feature) = feature else { continue };
+            if links.len() != feature.coordinates().num_blocks() {
+                return Err(Error::Sharing(format!(
+                    "feature {index} has {} blocks but {} links",
+                    feature.coordinates().num_blocks(),
+                    links.len()
+                )));
+            }
+            for (block, link) in links.iter().enumerate() {
+                let listed = link.is_some_and(|id| {
+                    self.shared_block(id)
+                        .is_ok_and(|s| s.members.contains(&(FeatureId(index), block)))
+                });
+                if link.is_some() != feature.is_shared(block) || (link.is_some() && !listed) {
+                    return Err(Error::Sharing(format!(
+                        "block {block} of feature {index}: link and sharing flag disagree"
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks that every shared block's value equals the block in each member feature.
+    pub fn check_consistency(&self) -> Result<()> {
+        for (id, shared) in self.shared_blocks() {
+            for &(member, block) in &shared.members {
+                let held = self.get(member)?.coordinates().block(block).copied();
+                let linked = self.links[member.0].get(block).copied().flatten() == Some(id);
+                if held != Some(shared.value) || !linked {
+                    return Err(Error::Sharing(format!(
+                        "shared block {} is not block {block} of feature {} (value or link)",
+                        id.0, member.0
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,257 @@
+//! Measurement models (paper section V-A): the innovation `eta(x_o, v)` with `J_eta_v` and
+//! `J_eta_o`, and the generic chain that turns them into the Jacobian with respect to the
+//! estimator's state, `J_eta,state = J_eta_o (J_or | J_of B~)` (eqs. 21 and 30).
+
+use std::fmt::Debug;
+
+use nalgebra::{DMatrix, DVector};
+
+use crate::coords::Coordinates;
+use crate::error::{Error, Result};
+use crate::feature::{Feature, downcast_feature};
+use crate::pose::{Pose3, RobotPose};
+use crate::transform::MapToSensor;
+
+/// The innovation of one measurement of one feature and its Jacobians (eq. 16).
+///
+/// `eta` has expected value zero when the feature and pose are right.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Innovation {
+    /// `eta(x_o, v)`, length `m`.
+    pub eta: DVector<f64>,
+    /// `J_eta_o = d eta / d x_o`, `m x dim(x_f)`.
+    pub d_eta_d_xo: DMatrix<f64>,
+    /// `J_eta_v = d eta / d v`, `m x dim(v)`.
+    pub d_eta_d_v: DMatrix<f64>,
+    /// `C_v`, the covariance of the measurement `v`, `dim(v) x dim(v)`.
+    pub cov_v: DMatrix<f64>,
+}
+
+impl Innovation {
+    /// Number of innovation rows `m`.
+    pub fn dim(&self) -> usize {
+        self.eta.len()
+    }
+
+    /// `C_eta = J_eta_v C_v J_eta_v^T`, the innovation's own covariance (the `C_eta` of eq. 29).
+    pub fn covariance(&self) -> DMatrix<f64> {
+        &self.d_eta_d_v * &self.cov_v * self.d_eta_d_v.transpose()
+    }
+
+    /// Checks shapes against `dim(x_f)` and that every value is finite.
+    pub fn validate(&self, dim_f: usize) -> Result<()> {
+        let m = self.eta.len();
+        let checks = [
+            ("J_eta_o rows", m, self.d_eta_d_xo.nrows()),
+            ("J_eta_o columns (dim x_f)", dim_f, self.d_eta_d_xo.ncols()),
+            ("J_eta_v rows", m, self.d_eta_d_v.nrows()),
+            (
+                "C_v rows (dim v)",
+                self.d_eta_d_v.ncols(),
+                self.cov_v.nrows(),
+            ),
+            (
+                "C_v columns (dim v)",
+                self.d_eta_d_v.ncols(),
+                self.cov_v.ncols(),
+            ),
+        ];
+        for (what, expected, got) in checks {
+            if expected != got {
+                return Err(Error::DimensionMismatch {
+                    what: what.into(),
+                    expected,
+                    got,
+                });
+            }
+        }
+        let all = self
+            .eta
+            .iter()
+            .chain(self.d_eta_d_xo.iter())
+            .chain(self.d_eta_d_v.iter())
+            .chain(self.cov_v.iter());
+        if all.into_iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            Err(Error::NonFinite("innovation".into()))
+        }
+    }
+}
+
+/// A measurement `v` of one feature type together with the model that explains it.
+///
+/// Only `eta`, its Jacobians and the feature's `B` depend on the feature type (paper
+/// section V-A); everything else is generic ([`linearize`]). Implement this typed trait; the
+/// estimator stores measurements as `Box<dyn DynMeasurementModel>` through the blanket
+/// implementation, which checks the feature type. Run
+/// [`crate::testing::assert_measurement_conforms`] on every implementation.
+pub trait MeasurementModel: Debug + Send + Sync + 'static {
+    /// The feature type this measurement observes.
+    type Feature: Feature;
+
+    /// `eta(x_o, v)` with `J_eta_o`, `J_eta_v` and `C_v` for the feature's coordinates `x_o` in
+    /// the sensor frame. Only the directions in the feature's current M-space may be used
+    /// (e.g. a wall's endpoint rows only once the endpoint is in its M-space).
+    fn innovation(&self, feature: &Self::Feature, x_o: &Coordinates) -> Result<Innovation>;
+
+    /// The measured values `v` as a vector.
+    fn measurement(&self) -> DVector<f64>;
+
+    /// The same measurement with values `v` (used to check `J_eta_v` by central differences).
+    fn with_measurement(&self, v: &DVector<f64>) -> Result<Self>
+    where
+        Self: Sized;
+
+    /// A new, tentative feature (M-space dimension 0) in the map frame from this measurement
+    /// alone, when one measurement suffices to place it; `None` otherwise.
+    fn initial_feature(&self, world_from_sensor: &Pose3) -> Result<Option<Self::Feature>> {
+        let _ = world_from_sensor;
+        Ok(None)
+    }
+
+    /// Names of inactive subspaces of `feature` that this measurement observes directly
+    /// (e.g. a real wall endpoint reveals `"start"`), for the estimator's lifecycle rules.
+    fn revealed_subspaces(&self, feature: &Self::Feature) -> Vec<&'static str> {
+        let _ = feature;
+        Vec::new()
+    }
+}
+
+/// The object-safe form of [`MeasurementModel`], implemented for every model.
+pub trait DynMeasurementModel: Debug + Send + Sync {
+    /// Rust type name of the feature type the model observes (for messages).
+    fn feature_type_name(&self) -> &'static str;
+
+    /// Whether `feature` is of the type this model observes.
+    fn accepts(&self, feature: &dyn Feature) -> bool;
+
+    /// [`MeasurementModel::innovation`], after checking the feature type and the result's shapes.
+    fn innovation_dyn(&self, feature: &dyn Feature, x_o: &Coordinates) -> Result<Innovation>;
+
+    /// [`MeasurementModel::measurement`].
+    fn measurement_dyn(&self) -> DVector<f64>;
+
+    /// [`MeasurementModel::initial_feature`], boxed.
+    fn initial_feature_dyn(&self, world_from_sensor: &Pose3) -> Result<Option<Box<dyn Feature>>>;
+
+    /// [`MeasurementModel::revealed_subspaces`], after checking the feature type.
+    fn revealed_subspaces_dyn(&self, feature: &dyn Feature) -> Result<Vec<&'static str>>;
+}
+
+impl<M: MeasurementModel> DynMeasurementModel for M {
+    fn feature_type_name(&self) -> &'static str {
+        std::any::type_name::<M::Feature>()
+    }
+
+    fn accepts(&self, feature: &dyn Feature) -> bool {
+        downcast_feature::<M::Feature>(feature).is_some()
+    }
+
+    fn innovation_dyn(&self, feature: &dyn Feature, x_o: &Coordinates) -> Result<Innovation> {
+        let typed = typed_feature::<M>(feature)?;
+        let innovation = self.innovation(typed, x_o)?;
+        innovation.validate(feature.coordinates().dim())?;
+        Ok(innovation)
+    }
+
+    fn measurement_dyn(&self) -> DVector<f64> {
+        self.measurement()
+    }
+
+    fn initial_feature_dyn(&self, world_from_sensor: &Pose3) -> Result<Option<Box<dyn Feature>>> {
+        Ok(self
+            .initial_feature(world_from_sensor)?
+            .map(|f| Box::new(f) as Box<dyn Feature>))
+    }
+
+    fn revealed_subspaces_dyn(&self, feature: &dyn Feature) -> Result<Vec<&'static str>> {
+        Ok(self.revealed_subspaces(typed_feature::<M>(feature)?))
+    }
+}
+
+fn typed_feature<M: MeasurementModel>(feature: &dyn Feature) -> Result<&M::Feature> {
+    downcast_feature::<M::Feature>(feature).ok_or(Error::FeatureTypeMismatch {
+        expected: std::any::type_name::<M::Feature>(),
+        got: feature.kind(),
+    })
+}
+
+/// A measurement linearized around the current estimate: eq. 16 with the chain of eq. 21,
+/// giving every block of `J_eta,state` (eq. 30).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LinearizedMeasurement {
+    /// `eta` at the current estimate.
+    pub eta: DVector<f64>,
+    /// `C_eta = J_eta_v C_v J_eta_v^T`.
+    pub cov_eta: DMatrix<f64>,
+    /// `J_eta_o J_os J_sr`: with respect to the robot pose parameters (`m x P::DIM`).
+    pub d_eta_d_robot: DMatrix<f64>,
+    /// `J_eta_o J_os J_ss`: with respect to the sensor offset `(x, y, z, yaw, pitch, roll)`.
+    pub d_eta_d_sensor_offset: DMatrix<f64>,
+    /// `J_eta_o J_of B~`: with respect to the feature's own M-space perturbation.
+    pub d_eta_d_own: DMatrix<f64>,
+    /// `J_eta_o J_of E_k` for each shared block `k` (block index, `m x dim(block)`): the shared
+    /// block's rows are the identity on its coordinates (section VI).
+    pub d_eta_d_shared: Vec<(usize, DMatrix<f64>)>,
+    /// `J_eta_f = J_eta_o J_of`: with respect to all feature coordinates (what the measurement
+    /// would observe of directions not yet in the M-space).
+    pub d_eta_d_xf: DMatrix<f64>,
+}
+
+/// Linearizes `measurement` of `feature` seen by a sensor at `robot_from_sensor` on a robot at
+/// `world_from_robot`: eqs. 16-21 and 30, written once for every feature and estimator.
+///
+/// ```
+/// use slam_core::{linearize, Pose2, Pose3};
+/// # fn demo(measurement: &dyn slam_core::DynMeasurementModel, feature: &dyn slam_core::Feature) -> slam_core::Result<()> {
+/// let lin = linearize(measurement, feature, &Pose2::new(1.0, 0.0, 0.3), &Pose3::identity())?;
+/// // The EKF's J_eta,state places d_eta_d_robot, d_eta_d_own and d_eta_d_shared in its columns.
+/// assert_eq!(lin.d_eta_d_robot.ncols(), 3);
+/// # Ok(()) }
+/// ```
+pub fn linearize<P: RobotPose>(
+    measurement: &dyn DynMeasurementModel,
+    feature: &dyn Feature,
+    world_from_robot: &P,
+    robot_from_sensor: &Pose3,
+) -> Result<LinearizedMeasurement> {
+    let sensor = world_from_robot.sensor_pose(robot_from_sensor)?;
+    let to_sensor = MapToSensor::new(&sensor.world_from_sensor)?;
+    let seen = to_sensor.transform_with_jacobians(feature.coordinates())?;
+    let innovation = measurement.innovation_dyn(feature, &seen.x_o)?;
+    let d_eta_d_sensor = &innovation.d_eta_d_xo * &seen.d_xo_d_sensor;
+    let d_eta_d_xf = &innovation.d_eta_d_xo * &seen.d_xo_d_xm;
+    let d_eta_d_own = &d_eta_d_xf * feature.dual()?;
+    let coordinates = feature.coordinates();
+    let d_eta_d_shared = (0..coordinates.num_blocks())
+        .filter(|&k| feature.is_shared(k))
+        .map(|k| {
+            let offset = coordinates.offset(k);
+            let width = coordinates.blocks()[k].dim();
+            (k, d_eta_d_xf.columns(offset, width).into_owned())
+        })
+        .collect();
+    Ok(LinearizedMeasurement {
+        cov_eta: innovation.covariance(),
+        d_eta_d_robot: &d_eta_d_sensor * &sensor.d_sensor_d_robot,
+        d_eta_d_sensor_offset: &d_eta_d_sensor
+            * DMatrix::from_column_slice(6, 6, sensor.d_sensor_d_offset.as_slice()),
+        d_eta_d_own,
+        d_eta_d_shared,
+        d_eta_d_xf,
+        eta: innovation.eta,
+    })
+}
+
+/// The innovation alone (no Jacobians through the chain): for gating and checks.
+pub fn innovation_at<P: RobotPose>(
+    measurement: &dyn DynMeasurementModel,
+    feature: &dyn Feature,
+    world_from_robot: &P,
+    robot_from_sensor: &Pose3,
+) -> Result<Innovation> {
+    let world_from_sensor = world_from_robot.world_from_sensor(robot_from_sensor);
+    let x_o = MapToSensor::new(&world_from_sensor)?.transform(feature.coordinates())?;
+    measurement.innovation_dyn(feature, &x_o)
+}

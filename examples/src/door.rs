@@ -332,7 +332,7 @@ impl MeasurementModel for DoorObservation {
         Door::new(left, right).map(Some)
     }
 
-    fn revealed_subspaces(&self, door: &Door) -> Vec<&'static str> {
+    fn revealed_subspaces(&self, door: &Door, _x_o: &Coordinates) -> Vec<&'static str> {
         door.allowed_growth()
             .map(|s| s.spec().name)
             .into_iter()

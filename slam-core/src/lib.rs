@@ -40,8 +40,8 @@ pub use estimator::{Estimator, Observation, UpdateReport};
 pub use feature::{Feature, Growth, Subspace, downcast_feature, downcast_feature_mut, stack_rows};
 pub use map::{FeatureId, FeatureMap, MapLinearization, RowOwner, SharedBlock, SharedBlockId};
 pub use measurement::{
-    DynMeasurementModel, Innovation, LinearizedMeasurement, MeasurementModel, innovation_at,
-    linearize,
+    DynMeasurementModel, Innovation, LinearizedMeasurement, MeasurementModel, Triangulation,
+    innovation_at, linearize,
 };
 pub use motion::{MotionModel, MotionPrediction};
 pub use pose::{Pose2, Pose3, RobotPose, SensorPose, wrap_angle};

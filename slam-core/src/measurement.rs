@@ -112,10 +112,32 @@ pub trait MeasurementModel: Debug + Send + Sync + 'static {
 
     /// Names of inactive subspaces of `feature` that this measurement observes directly
     /// (e.g. a real wall endpoint reveals `"start"`), for the estimator's lifecycle rules.
-    fn revealed_subspaces(&self, feature: &Self::Feature) -> Vec<&'static str> {
-        let _ = feature;
+    /// `x_o` is the feature in the sensor frame, as for [`innovation`](Self::innovation).
+    fn revealed_subspaces(&self, feature: &Self::Feature, x_o: &Coordinates) -> Vec<&'static str> {
+        let _ = (feature, x_o);
         Vec::new()
     }
+
+    /// A feature placed by several measurements of it taken from different sensor poses
+    /// (`world_from_sensor`, measurement), for features that one measurement cannot place
+    /// (bearing-only lamps, ceiling lines), with the subspaces the views reveal together.
+    /// `Ok(None)` while the views do not triangulate it well (too little parallax).
+    fn triangulate(views: &[(Pose3, &Self)]) -> Result<Option<Triangulation<Self::Feature>>>
+    where
+        Self: Sized,
+    {
+        let _ = views;
+        Ok(None)
+    }
+}
+
+/// A feature placed by triangulation, with the subspaces its views reveal.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Triangulation<F> {
+    /// The feature, at M-space dimension 0, in the map frame.
+    pub feature: F,
+    /// The subspaces the views observe together, in activation order.
+    pub reveals: Vec<&'static str>,
 }
 
 /// The object-safe form of [`MeasurementModel`], implemented for every model.
@@ -136,7 +158,22 @@ pub trait DynMeasurementModel: Debug + Send + Sync {
     fn initial_feature_dyn(&self, world_from_sensor: &Pose3) -> Result<Option<Box<dyn Feature>>>;
 
     /// [`MeasurementModel::revealed_subspaces`], after checking the feature type.
-    fn revealed_subspaces_dyn(&self, feature: &dyn Feature) -> Result<Vec<&'static str>>;
+    fn revealed_subspaces_dyn(
+        &self,
+        feature: &dyn Feature,
+        x_o: &Coordinates,
+    ) -> Result<Vec<&'static str>>;
+
+    /// [`MeasurementModel::triangulate`] of this measurement (taken at `world_from_sensor`)
+    /// together with `others`, which must be measurements of the same type.
+    fn triangulate_dyn(
+        &self,
+        world_from_sensor: &Pose3,
+        others: &[(Pose3, &dyn DynMeasurementModel)],
+    ) -> Result<Option<Triangulation<Box<dyn Feature>>>>;
+
+    /// The measurement as `Any`, to recover its concrete type.
+    fn as_any(&self) -> &dyn std::any::Any;
 }
 
 impl<M: MeasurementModel> DynMeasurementModel for M {
@@ -165,8 +202,37 @@ impl<M: MeasurementModel> DynMeasurementModel for M {
             .map(|f| Box::new(f) as Box<dyn Feature>))
     }
 
-    fn revealed_subspaces_dyn(&self, feature: &dyn Feature) -> Result<Vec<&'static str>> {
-        Ok(self.revealed_subspaces(typed_feature::<M>(feature)?))
+    fn revealed_subspaces_dyn(
+        &self,
+        feature: &dyn Feature,
+        x_o: &Coordinates,
+    ) -> Result<Vec<&'static str>> {
+        Ok(self.revealed_subspaces(typed_feature::<M>(feature)?, x_o))
+    }
+
+    fn triangulate_dyn(
+        &self,
+        world_from_sensor: &Pose3,
+        others: &[(Pose3, &dyn DynMeasurementModel)],
+    ) -> Result<Option<Triangulation<Box<dyn Feature>>>> {
+        let mut views = vec![(*world_from_sensor, self)];
+        for (pose, other) in others {
+            let typed = other.as_any().downcast_ref::<M>().ok_or_else(|| {
+                Error::InvalidArgument(format!(
+                    "cannot triangulate a {} with a measurement of another type",
+                    std::any::type_name::<M>()
+                ))
+            })?;
+            views.push((*pose, typed));
+        }
+        Ok(M::triangulate(&views)?.map(|t| Triangulation {
+            feature: Box::new(t.feature) as Box<dyn Feature>,
+            reveals: t.reveals,
+        }))
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
     }
 }
 

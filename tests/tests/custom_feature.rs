@@ -32,11 +32,10 @@ fn a_door_runs_through_the_generic_chain_and_map() {
         .linearize(door_id, &observation, &robot, &Pose3::identity())
         .unwrap();
     assert!(lin.columns.is_empty());
-    let revealed = slam_core::DynMeasurementModel::revealed_subspaces_dyn(
-        &observation,
-        map.get(door_id).unwrap(),
-    )
-    .unwrap();
+    let door = map.get(door_id).unwrap();
+    let x_o = door.coordinates().clone(); // robot at the origin: sensor frame = map frame
+    let revealed =
+        slam_core::DynMeasurementModel::revealed_subspaces_dyn(&observation, door, &x_o).unwrap();
     assert_eq!(revealed, vec!["centre"]);
     let growth = map.activate(door_id, "centre").unwrap();
     assert_eq!(growth.rows, 0..2);

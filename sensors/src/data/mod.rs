@@ -1,0 +1,1 @@
+//! Dataset readers: each turns a dataset into one [`crate::Dataset`] event stream.

@@ -1,0 +1,116 @@
+//! Range and bearing from a planar sensor to a point landmark (the classic EKF-SLAM case).
+
+use slam_core::nalgebra::{DMatrix, DVector, Vector3};
+use slam_core::{
+    CoordBlock, Coordinates, Error, Feature, Innovation, MeasurementModel, Pose3, Result,
+    ensure_finite, wrap_angle,
+};
+use slam_features::Point;
+
+use super::check_sigmas;
+
+/// Range and bearing to a [`Point`] in the plane of a 2-D sensor: the "2-D use of the 3-D
+/// point". The prediction uses the point's x and y in the sensor frame (its height does not
+/// enter), so a landmark map carries only the point's `"horizontal"` subspace.
+///
+/// `eta = (|p_xy| - range, wrap(atan2(p_y, p_x) - bearing))`.
+///
+/// ```
+/// use slam_sensors::models::RangeBearing;
+/// use slam_features::Point;
+/// use slam_core::{MeasurementModel, Coordinates, CoordBlock, nalgebra::Vector3};
+/// let z = RangeBearing::new(5.0, 0.0, 0.1, 0.01).unwrap();
+/// let x_o = Coordinates::new(vec![CoordBlock::Point3(Vector3::new(5.0, 0.0, 0.0))]).unwrap();
+/// let point = Point::planar(Vector3::new(5.0, 0.0, 0.0)).unwrap();
+/// assert!(z.innovation(&point, &x_o).unwrap().eta.norm() < 1e-12);
+/// ```
+#[derive(Clone, Debug, PartialEq)]
+pub struct RangeBearing {
+    /// Measured range, m.
+    pub range: f64,
+    /// Measured bearing in the sensor frame, rad.
+    pub bearing: f64,
+    /// Range standard deviation, m.
+    pub sigma_range: f64,
+    /// Bearing standard deviation, rad.
+    pub sigma_bearing: f64,
+}
+
+impl RangeBearing {
+    /// A measurement; values finite, range positive, deviations positive.
+    pub fn new(range: f64, bearing: f64, sigma_range: f64, sigma_bearing: f64) -> Result<Self> {
+        ensure_finite(&[range, bearing], "range-bearing measurement")?;
+        check_sigmas(&[sigma_range, sigma_bearing], "range-bearing")?;
+        if range <= 0.0 {
+            return Err(Error::InvalidArgument(format!("range must be positive, got {range}")));
+        }
+        Ok(RangeBearing {
+            range,
+            bearing: wrap_angle(bearing),
+            sigma_range,
+            sigma_bearing,
+        })
+    }
+}
+
+impl MeasurementModel for RangeBearing {
+    type Feature = Point;
+
+    fn innovation(&self, _point: &Point, x_o: &Coordinates) -> Result<Innovation> {
+        let [CoordBlock::Point3(p)] = x_o.blocks() else {
+            return Err(Error::InvalidArgument("a point is one 3-D block".into()));
+        };
+        let r2 = p.x * p.x + p.y * p.y;
+        if r2 < 1e-18 {
+            return Err(Error::Degenerate("landmark at the sensor origin".into()));
+        }
+        let r = r2.sqrt();
+        Ok(Innovation {
+            eta: DVector::from_vec(vec![
+                r - self.range,
+                wrap_angle(p.y.atan2(p.x) - self.bearing),
+            ]),
+            d_eta_d_xo: DMatrix::from_row_slice(
+                2,
+                3,
+                &[p.x / r, p.y / r, 0.0, -p.y / r2, p.x / r2, 0.0],
+            ),
+            d_eta_d_v: -DMatrix::identity(2, 2),
+            cov_v: DMatrix::from_diagonal(&DVector::from_vec(vec![
+                self.sigma_range.powi(2),
+                self.sigma_bearing.powi(2),
+            ])),
+        })
+    }
+
+    fn measurement(&self) -> DVector<f64> {
+        DVector::from_vec(vec![self.range, self.bearing])
+    }
+
+    fn with_measurement(&self, v: &DVector<f64>) -> Result<Self> {
+        if v.len() != 2 {
+            return Err(Error::DimensionMismatch {
+                what: "range-bearing measurement".into(),
+                expected: 2,
+                got: v.len(),
+            });
+        }
+        RangeBearing::new(v[0], v[1], self.sigma_range, self.sigma_bearing)
+    }
+
+    /// The point where the beam hit, in 3-D (on the scan plane, however tilted).
+    fn initial_feature(&self, world_from_sensor: &Pose3) -> Result<Option<Point>> {
+        let (s, c) = self.bearing.sin_cos();
+        let hit = world_from_sensor.transform_point(&Vector3::new(self.range * c, self.range * s, 0.0));
+        Point::new(hit).map(Some)
+    }
+
+    fn revealed_subspaces(&self, point: &Point, _x_o: &Coordinates) -> Vec<&'static str> {
+        point
+            .growth_options()
+            .into_iter()
+            .filter(|s| s.name == slam_features::point::HORIZONTAL.name)
+            .map(|s| s.name)
+            .collect()
+    }
+}

@@ -1,10 +1,37 @@
-//! The `slam` command. Its `run` subcommand arrives with the EKF; until then it explains
-//! what exists and exits with status 2.
+//! The `slam` command.
+
+mod camera;
+mod data;
+mod error;
+mod extract;
+mod plot;
+
+use clap::{Parser, Subcommand};
+
+/// A SLAM framework for maps made of geometry (walls, ceiling lines, poles, points).
+#[derive(Debug, Parser)]
+#[command(name = "slam", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Run the scan front-ends on one scan and draw what they find.
+    Extract(extract::ExtractArgs),
+    /// Run the ceiling-image front-end on one image and draw what it finds.
+    Camera(camera::CameraArgs),
+}
 
 fn main() {
-    eprintln!(
-        "slam: no subcommand is implemented yet.\n\
-         Try `cargo run --release -p slam-examples --example mspace_tour` for a tour of the M-space core."
-    );
-    std::process::exit(2);
+    let cli = Cli::parse();
+    let result = match &cli.command {
+        Command::Extract(args) => extract::run(args),
+        Command::Camera(args) => camera::run(args),
+    };
+    if let Err(error) = result {
+        eprintln!("slam: {error}");
+        std::process::exit(1);
+    }
 }

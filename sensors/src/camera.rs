@@ -55,9 +55,13 @@ pub const MIN_DEPTH: f64 = 1e-6;
 impl PinholeCamera {
     /// Checks the intrinsics: positive focal lengths and image size, finite values.
     pub fn validate(&self) -> Result<()> {
-        let finite = [self.fx, self.fy, self.cx, self.cy].iter().all(|v| v.is_finite());
+        let finite = [self.fx, self.fy, self.cx, self.cy]
+            .iter()
+            .all(|v| v.is_finite());
         if !finite || self.fx <= 0.0 || self.fy <= 0.0 || self.width == 0 || self.height == 0 {
-            return Err(Error::InvalidArgument(format!("camera intrinsics {self:?}")));
+            return Err(Error::InvalidArgument(format!(
+                "camera intrinsics {self:?}"
+            )));
         }
         Ok(())
     }
@@ -93,7 +97,10 @@ impl PinholeCamera {
 
     /// The pixel of normalized coordinates.
     pub fn pixel(&self, normalized: &Vector2<f64>) -> Vector2<f64> {
-        Vector2::new(normalized.x * self.fx + self.cx, normalized.y * self.fy + self.cy)
+        Vector2::new(
+            normalized.x * self.fx + self.cx,
+            normalized.y * self.fy + self.cy,
+        )
     }
 
     /// Whether a pixel lies inside the image.

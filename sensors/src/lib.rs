@@ -17,9 +17,11 @@ pub mod camera;
 pub mod data;
 mod error;
 pub mod events;
+pub mod extract;
 pub mod models;
 pub mod odometry;
 mod scan;
+pub mod sim;
 
 pub use error::{Result, SensorError};
 pub use events::{Clock, Dataset, Event, KnownLandmark, TimedEvent, TruthKind};

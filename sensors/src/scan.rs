@@ -54,7 +54,9 @@ impl LaserScan {
         max_range: f64,
     ) -> Result<Self> {
         if ranges.is_empty() {
-            return Err(SensorError::InvalidArgument("a scan needs at least one beam".into()));
+            return Err(SensorError::InvalidArgument(
+                "a scan needs at least one beam".into(),
+            ));
         }
         let increment = if ranges.len() > 1 {
             (angle_max - angle_min) / (ranges.len() - 1) as f64

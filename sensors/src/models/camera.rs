@@ -1,7 +1,9 @@
 //! Ceiling-camera measurements: an image point (a lamp) of a [`Point`], bearing-only, and an
 //! image line of a horizontal line [`HLine`] (paper sections IV-E, IV-G and VII).
 
-use slam_core::nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Matrix3, RowVector2, Vector2, Vector3};
+use slam_core::nalgebra::{
+    DMatrix, DVector, Matrix2, Matrix2x3, Matrix3, RowVector2, Vector2, Vector3,
+};
 use slam_core::{
     CoordBlock, Coordinates, Error, Feature, Innovation, MeasurementModel, Pose3, Result,
     Triangulation, ensure_finite, wrap_angle,
@@ -36,7 +38,12 @@ pub struct ImagePointObservation {
 
 impl ImagePointObservation {
     /// An observation; finite pixel, positive deviation and depth, valid intrinsics.
-    pub fn new(pixel: Vector2<f64>, sigma_px: f64, camera: PinholeCamera, assumed_depth: f64) -> Result<Self> {
+    pub fn new(
+        pixel: Vector2<f64>,
+        sigma_px: f64,
+        camera: PinholeCamera,
+        assumed_depth: f64,
+    ) -> Result<Self> {
         ensure_finite(pixel.as_slice(), "image point")?;
         check_sigmas(&[sigma_px, assumed_depth], "image point")?;
         camera.validate()?;
@@ -84,7 +91,12 @@ impl MeasurementModel for ImagePointObservation {
                 got: v.len(),
             });
         }
-        ImagePointObservation::new(Vector2::new(v[0], v[1]), self.sigma_px, self.camera, self.assumed_depth)
+        ImagePointObservation::new(
+            Vector2::new(v[0], v[1]),
+            self.sigma_px,
+            self.camera,
+            self.assumed_depth,
+        )
     }
 
     fn initial_feature(&self, world_from_sensor: &Pose3) -> Result<Option<Point>> {
@@ -99,7 +111,10 @@ impl MeasurementModel for ImagePointObservation {
         let rays: Vec<_> = views.iter().map(|(pose, z)| z.world_ray(pose)).collect();
         let parallax = rays
             .iter()
-            .flat_map(|a| rays.iter().map(move |b| a.1.dot(&b.1).clamp(-1.0, 1.0).acos()))
+            .flat_map(|a| {
+                rays.iter()
+                    .map(move |b| a.1.dot(&b.1).clamp(-1.0, 1.0).acos())
+            })
             .fold(0.0, f64::max);
         if rays.len() < 2 || parallax < MIN_PARALLAX {
             return Ok(None);
@@ -208,7 +223,9 @@ impl MeasurementModel for ImageLineObservation {
 
     fn innovation(&self, line: &HLine, x_o: &Coordinates) -> Result<Innovation> {
         let [CoordBlock::Point3(s), CoordBlock::Point3(e)] = x_o.blocks() else {
-            return Err(Error::InvalidArgument("a horizontal line is two 3-D points".into()));
+            return Err(Error::InvalidArgument(
+                "a horizontal line is two 3-D points".into(),
+            ));
         };
         let (a, d_a) = normalize(s)?;
         let (b, d_b) = normalize(e)?;
@@ -219,7 +236,11 @@ impl MeasurementModel for ImageLineObservation {
         }
         let t = u / length;
         let m = Vector2::new(-t.y, t.x);
-        let sign = if (m.y.atan2(m.x) - self.theta).cos() < 0.0 { -1.0 } else { 1.0 };
+        let sign = if (m.y.atan2(m.x) - self.theta).cos() < 0.0 {
+            -1.0
+        } else {
+            1.0
+        };
         let normal = m * sign;
         let theta_pred = normal.y.atan2(normal.x);
         // d theta / d u = perp(u) / |u|^2 whatever the sign; d = sign m . a.
@@ -323,13 +344,21 @@ impl MeasurementModel for ImageLineObservation {
             scatter += h * h.transpose();
         }
         let eigen = scatter.symmetric_eigen();
-        let smallest = if eigen.eigenvalues[0] <= eigen.eigenvalues[1] { 0 } else { 1 };
+        let smallest = if eigen.eigenvalues[0] <= eigen.eigenvalues[1] {
+            0
+        } else {
+            1
+        };
         let direction = eigen.eigenvectors.column(smallest).into_owned();
         let direction3 = Vector3::new(direction.x, direction.y, 0.0);
         // The planes must differ by the parallax angle about the line.
         let parallax = planes
             .iter()
-            .flat_map(|a| planes.iter().map(move |b| a.0.dot(&b.0).abs().clamp(0.0, 1.0).acos()))
+            .flat_map(|a| {
+                planes
+                    .iter()
+                    .map(move |b| a.0.dot(&b.0).abs().clamp(0.0, 1.0).acos())
+            })
             .fold(0.0, f64::max);
         if parallax < MIN_PARALLAX {
             return Ok(None);
@@ -345,7 +374,10 @@ impl MeasurementModel for ImageLineObservation {
         let Some(point) = normal_matrix.try_inverse().map(|inverse| inverse * rhs) else {
             return Ok(None);
         };
-        if views.iter().any(|(pose, _)| pose.inverse_transform_point(&point).z <= MIN_DEPTH) {
+        if views
+            .iter()
+            .any(|(pose, _)| pose.inverse_transform_point(&point).z <= MIN_DEPTH)
+        {
             return Ok(None);
         }
         // Extent: where the end rays of all views come closest to the line.
@@ -353,7 +385,12 @@ impl MeasurementModel for ImageLineObservation {
         for (pose, z) in views {
             for q in &z.ends {
                 let ray = pose.rotation() * Vector3::new(q.x, q.y, 1.0);
-                along.push(closest_along_line(&point, &direction3, &pose.translation, &ray));
+                along.push(closest_along_line(
+                    &point,
+                    &direction3,
+                    &pose.translation,
+                    &ray,
+                ));
             }
         }
         let lo = along.iter().copied().fold(f64::INFINITY, f64::min);

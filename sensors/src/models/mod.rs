@@ -19,7 +19,10 @@ use slam_core::nalgebra::{Matrix2, Vector2};
 /// inverse of paper eq. 34, `x_m = M (u, v) + t_xy` with `M` the top-left 2x2 block of the
 /// sensor's rotation.
 pub fn scan_plane_to_world(world_from_sensor: &Pose3, in_plane: &Vector2<f64>) -> Vector2<f64> {
-    let m: Matrix2<f64> = world_from_sensor.rotation().fixed_view::<2, 2>(0, 0).into_owned();
+    let m: Matrix2<f64> = world_from_sensor
+        .rotation()
+        .fixed_view::<2, 2>(0, 0)
+        .into_owned();
     m * in_plane + world_from_sensor.translation.xy()
 }
 

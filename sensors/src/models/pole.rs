@@ -49,7 +49,9 @@ impl MeasurementModel for PoleObservation {
 
     fn innovation(&self, _pole: &Pole, x_o: &Coordinates) -> Result<Innovation> {
         let [CoordBlock::Scalar(r), CoordBlock::Point2(c)] = x_o.blocks() else {
-            return Err(Error::InvalidArgument("a pole is a radius and a 2-D centre".into()));
+            return Err(Error::InvalidArgument(
+                "a pole is a radius and a 2-D centre".into(),
+            ));
         };
         let d2 = c.norm_squared();
         if d2 < 1e-18 {
@@ -66,7 +68,15 @@ impl MeasurementModel for PoleObservation {
                 3,
                 3,
                 &[
-                    0.0, c.x / d, c.y / d, 0.0, -c.y / d2, c.x / d2, 1.0, 0.0, 0.0,
+                    0.0,
+                    c.x / d,
+                    c.y / d,
+                    0.0,
+                    -c.y / d2,
+                    c.x / d2,
+                    1.0,
+                    0.0,
+                    0.0,
                 ],
             ),
             d_eta_d_v: -DMatrix::identity(3, 3),
@@ -94,7 +104,10 @@ impl MeasurementModel for PoleObservation {
 
     fn initial_feature(&self, world_from_sensor: &Pose3) -> Result<Option<Pole>> {
         let (s, c) = self.bearing.sin_cos();
-        let centre = scan_plane_to_world(world_from_sensor, &Vector2::new(self.range * c, self.range * s));
+        let centre = scan_plane_to_world(
+            world_from_sensor,
+            &Vector2::new(self.range * c, self.range * s),
+        );
         Pole::new(self.radius, centre).map(Some)
     }
 

@@ -42,7 +42,9 @@ impl RangeBearing {
         ensure_finite(&[range, bearing], "range-bearing measurement")?;
         check_sigmas(&[sigma_range, sigma_bearing], "range-bearing")?;
         if range <= 0.0 {
-            return Err(Error::InvalidArgument(format!("range must be positive, got {range}")));
+            return Err(Error::InvalidArgument(format!(
+                "range must be positive, got {range}"
+            )));
         }
         Ok(RangeBearing {
             range,
@@ -101,7 +103,8 @@ impl MeasurementModel for RangeBearing {
     /// The point where the beam hit, in 3-D (on the scan plane, however tilted).
     fn initial_feature(&self, world_from_sensor: &Pose3) -> Result<Option<Point>> {
         let (s, c) = self.bearing.sin_cos();
-        let hit = world_from_sensor.transform_point(&Vector3::new(self.range * c, self.range * s, 0.0));
+        let hit =
+            world_from_sensor.transform_point(&Vector3::new(self.range * c, self.range * s, 0.0));
         Point::new(hit).map(Some)
     }
 

@@ -59,7 +59,10 @@ impl WallObservation {
         ensure_finite(line_cov.as_slice(), "wall line covariance")?;
         ensure_finite(endpoints[0].as_slice(), "wall endpoint")?;
         ensure_finite(endpoints[1].as_slice(), "wall endpoint")?;
-        check_sigmas(&[sigma_endpoint, line_cov[(0, 0)], line_cov[(1, 1)]], "wall observation")?;
+        check_sigmas(
+            &[sigma_endpoint, line_cov[(0, 0)], line_cov[(1, 1)]],
+            "wall observation",
+        )?;
         if rho < 0.0 || (line_cov[(0, 1)] - line_cov[(1, 0)]).abs() > 1e-12 * line_cov.amax() {
             return Err(Error::InvalidArgument(
                 "wall observation needs rho >= 0 and a symmetric line covariance".into(),
@@ -118,6 +121,9 @@ fn endpoint_estimated(wall: &Wall, k: usize) -> bool {
     wall.is_shared(k) || wall.active_subspaces().iter().any(|s| s.name == name)
 }
 
+/// One innovation row: `(eta, d eta / d start, d eta / d end, d eta / d measurement)`.
+type InnovationRow = (f64, RowVector2<f64>, RowVector2<f64>, [f64; 6]);
+
 impl MeasurementModel for WallObservation {
     type Feature = Wall;
 
@@ -129,7 +135,9 @@ impl MeasurementModel for WallObservation {
         let u = e - s;
         let l = u.norm();
         if l < Wall::MIN_LENGTH {
-            return Err(Error::Degenerate("wall shorter than 1 mm in the sensor frame".into()));
+            return Err(Error::Degenerate(
+                "wall shorter than 1 mm in the sensor frame".into(),
+            ));
         }
         let t = u / l;
         let n = Vector2::new(-t.y, t.x); // free side
@@ -137,7 +145,7 @@ impl MeasurementModel for WallObservation {
         let projector = (Matrix2::identity() - t * t.transpose()) / l; // dt/du
 
         // Line rows: alpha_pred = angle(-n), rho_pred = -n . s.
-        let mut rows: Vec<(f64, RowVector2<f64>, RowVector2<f64>, [f64; 6])> = Vec::with_capacity(4);
+        let mut rows: Vec<InnovationRow> = Vec::with_capacity(4);
         let d_alpha_d_e = n.transpose() / l;
         let w = (s.transpose() * p - t.transpose() * s.dot(&n)) / l;
         rows.push((

@@ -1,0 +1,113 @@
+//! `slam camera`: runs the ceiling-image front-end on one image and draws the image with the
+//! lines and lamps it found.
+
+use std::path::PathBuf;
+
+use plotters::prelude::*;
+use slam_sensors::Event;
+use slam_sensors::extract::image::{ImageExtractorParams, extract_image_features};
+
+use crate::data::DataSpec;
+use crate::error::{CliError, Result};
+
+/// Arguments of `slam camera`.
+#[derive(Debug, clap::Args)]
+pub struct CameraArgs {
+    /// Data with camera images (sim or world:FILE).
+    #[arg(long, default_value = "sim")]
+    pub data: String,
+    /// Which image (0-based, in stream order).
+    #[arg(long, default_value_t = 0)]
+    pub image: usize,
+    /// Output image (.png).
+    #[arg(long, default_value = "camera.png")]
+    pub out: PathBuf,
+    /// Seed of the simulation.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+/// Runs `slam camera`.
+pub fn run(args: &CameraArgs) -> Result<()> {
+    let spec: DataSpec = args.data.parse()?;
+    let loaded = spec.load(args.seed)?;
+    let images: Vec<_> = loaded
+        .dataset
+        .events
+        .into_iter()
+        .filter_map(|e| match e.event {
+            Event::Image { image, camera, .. } => Some((image, camera)),
+            _ => None,
+        })
+        .collect();
+    let count = images.len();
+    let (image, camera) = images.into_iter().nth(args.image).ok_or_else(|| {
+        CliError::Usage(format!(
+            "--image {} is out of range: the data hold {count} images",
+            args.image
+        ))
+    })?;
+    let params = ImageExtractorParams::default();
+    let features = extract_image_features(&image, &camera, &params);
+    let scale = 3u32;
+    let (w, h) = (image.width * scale, image.height * scale);
+    let error = |e: String| CliError::Output {
+        path: args.out.display().to_string(),
+        message: e,
+    };
+    {
+        let root = BitMapBackend::new(&args.out, (w, h)).into_drawing_area();
+        for y in 0..image.height {
+            for x in 0..image.width {
+                let v = image.data[(y * image.width + x) as usize];
+                let rect = Rectangle::new(
+                    [
+                        ((x * scale) as i32, (y * scale) as i32),
+                        (((x + 1) * scale) as i32, ((y + 1) * scale) as i32),
+                    ],
+                    RGBColor(v, v, v).filled(),
+                );
+                root.draw(&rect).map_err(|e| error(e.to_string()))?;
+            }
+        }
+        let px = |p: &slam_core::nalgebra::Vector2<f64>| {
+            ((p.x * scale as f64) as i32, (p.y * scale as f64) as i32)
+        };
+        for line in &features.lines {
+            root.draw(&PathElement::new(
+                vec![px(&line.ends[0]), px(&line.ends[1])],
+                RED.stroke_width(2),
+            ))
+            .map_err(|e| error(e.to_string()))?;
+        }
+        for lamp in &features.lamps {
+            root.draw(&Circle::new(px(&lamp.centre), 8, GREEN.stroke_width(2)))
+                .map_err(|e| error(e.to_string()))?;
+        }
+        root.present().map_err(|e| error(e.to_string()))?;
+    }
+    println!(
+        "image {} of {count}: {} lines, {} lamps; drawn to {}",
+        args.image,
+        features.lines.len(),
+        features.lamps.len(),
+        args.out.display()
+    );
+    for line in &features.lines {
+        println!(
+            "line ({:.1}, {:.1}) - ({:.1}, {:.1}){}",
+            line.ends[0].x,
+            line.ends[0].y,
+            line.ends[1].x,
+            line.ends[1].y,
+            if line.clipped { " clipped" } else { "" }
+        );
+    }
+    for lamp in &features.lamps {
+        println!(
+            "lamp at ({:.1}, {:.1}), {} px",
+            lamp.centre.x, lamp.centre.y, lamp.area
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,207 @@
+//! `slam extract`: runs the scan front-ends (walls, poles) on one scan of a dataset, draws the
+//! scan with what was extracted, and lists it.
+
+use std::path::PathBuf;
+
+use slam_core::nalgebra::Vector2;
+use slam_core::{Pose2, Pose3, RobotPose};
+use slam_sensors::extract::{
+    LineExtractorParams, PoleExtractorParams, extract_poles, extract_segments,
+};
+use slam_sensors::models::scan_plane_to_world;
+use slam_sensors::{Event, LaserScan};
+
+use crate::data::DataSpec;
+use crate::error::{CliError, Result};
+use crate::plot::{Figure, palette};
+
+/// Arguments of `slam extract`.
+#[derive(Debug, clap::Args)]
+pub struct ExtractArgs {
+    /// Data: sim, world:FILE, carmen:FILE (see `slam help`).
+    #[arg(long, default_value = "sim")]
+    pub data: String,
+    /// Which scan (0-based, in stream order).
+    #[arg(long, default_value_t = 0)]
+    pub scan: usize,
+    /// Output image (.png or .svg).
+    #[arg(long, default_value = "extract.png")]
+    pub out: PathBuf,
+    /// Range noise standard deviation assumed by the extractors, m (default: the simulated
+    /// laser's, or 0.03 for real data).
+    #[arg(long)]
+    pub sigma_range: Option<f64>,
+    /// Seed of the simulation.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+/// A scan, its mount, and the robot pose it was taken from (when the data give one).
+struct PosedScan {
+    scan: LaserScan,
+    mount: Pose3,
+    pose: Option<Pose2>,
+}
+
+fn scans(events: Vec<slam_sensors::TimedEvent>) -> Vec<PosedScan> {
+    let mut out: Vec<(f64, PosedScan)> = Vec::new();
+    let mut poses: Vec<(f64, Pose2)> = Vec::new();
+    for e in events {
+        match e.event {
+            Event::Scan {
+                scan,
+                robot_from_sensor,
+            } => out.push((
+                e.time,
+                PosedScan {
+                    scan,
+                    mount: robot_from_sensor,
+                    pose: None,
+                },
+            )),
+            Event::GroundTruth { pose, .. } => poses.push((e.time, pose)),
+            _ => {}
+        }
+    }
+    for (time, posed) in &mut out {
+        posed.pose = poses.iter().find(|(t, _)| t == time).map(|(_, p)| *p);
+    }
+    out.into_iter().map(|(_, p)| p).collect()
+}
+
+/// Runs `slam extract`.
+pub fn run(args: &ExtractArgs) -> Result<()> {
+    let spec: DataSpec = args.data.parse()?;
+    let loaded = spec.load(args.seed)?;
+    let default_sigma = match &spec {
+        DataSpec::Sim => slam_sensors::sim::World::default_world()
+            .laser
+            .map_or(0.02, |l| l.sigma_range),
+        _ => 0.03,
+    };
+    let sigma = args.sigma_range.unwrap_or(default_sigma);
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return Err(CliError::Usage(format!(
+            "--sigma-range must be positive, got {sigma}"
+        )));
+    }
+    let mut all = scans(loaded.dataset.events);
+    let count = all.len();
+    if args.scan >= count {
+        return Err(CliError::Usage(format!(
+            "--scan {} is out of range: the data hold {count} scans",
+            args.scan
+        )));
+    }
+    let posed = all.swap_remove(args.scan);
+    let line_params = LineExtractorParams {
+        sigma_range: sigma,
+        ..Default::default()
+    };
+    let pole_params = PoleExtractorParams {
+        sigma_range: sigma,
+        ..Default::default()
+    };
+    let segments = extract_segments(&posed.scan, &line_params);
+    let poles = extract_poles(&posed.scan, &pole_params);
+    let world_from_sensor = posed
+        .pose
+        .unwrap_or_default()
+        .world_from_sensor(&posed.mount);
+    let to_world = |p: &Vector2<f64>| scan_plane_to_world(&world_from_sensor, p);
+
+    let frame = if posed.pose.is_some() {
+        "world frame"
+    } else {
+        "sensor frame"
+    };
+    let mut figure = Figure::new(
+        format!(
+            "{}: scan {} of {count} ({frame})",
+            loaded.dataset.name, args.scan
+        ),
+        1400,
+    );
+    if let Some(truth) = &loaded.truth {
+        for (a, b) in &truth.walls {
+            figure.segment(*a, *b, palette::TRUTH, 2);
+        }
+        for (c, r) in &truth.poles {
+            figure.circle(*c, *r, palette::TRUTH, false);
+        }
+        figure.legend("true walls and poles", palette::TRUTH);
+    }
+    if let Some(trajectory) = &loaded.trajectory {
+        figure.polyline(
+            trajectory.iter().map(|p| p.translation()).collect(),
+            palette::TRUE_PATH,
+            1,
+        );
+        figure.legend("true robot path", palette::TRUE_PATH);
+    }
+    let points: Vec<_> = posed
+        .scan
+        .points()
+        .iter()
+        .map(|p| to_world(&p.position))
+        .collect();
+    figure.dots(points.clone(), palette::POINTS, 3);
+    figure.legend(
+        format!(
+            "{} valid readings of {}",
+            points.len(),
+            posed.scan.ranges.len()
+        ),
+        palette::POINTS,
+    );
+    for s in &segments {
+        let (a, b) = (to_world(&s.ends[0]), to_world(&s.ends[1]));
+        figure.segment(a, b, palette::WALL, 4);
+        figure.marker(a, palette::WALL, 10, s.real[0]);
+        figure.marker(b, palette::WALL, 10, s.real[1]);
+    }
+    figure.legend(
+        format!("{} wall segments (filled square: real end)", segments.len()),
+        palette::WALL,
+    );
+    for p in &poles {
+        figure.circle(to_world(&p.centre), p.radius, palette::POLE, true);
+    }
+    figure.legend(format!("{} poles", poles.len()), palette::POLE);
+    figure.marker(world_from_sensor.translation.xy(), palette::PATH, 14, true);
+    figure.legend("sensor", palette::PATH);
+    figure.save(&args.out)?;
+
+    println!(
+        "{} segments, {} poles from scan {} ({} beams, sigma_range {sigma} m); image: {}",
+        segments.len(),
+        poles.len(),
+        args.scan,
+        posed.scan.ranges.len(),
+        args.out.display()
+    );
+    println!(
+        "{:>8} {:>8} {:>7} {:>6} {:>5} {:>5} {:>9} {:>9}",
+        "alpha", "rho", "length", "points", "real0", "real1", "sd_alpha", "sd_rho"
+    );
+    for s in &segments {
+        println!(
+            "{:>8.3} {:>8.3} {:>7.2} {:>6} {:>5} {:>5} {:>9.5} {:>9.5}",
+            s.alpha,
+            s.rho,
+            s.length(),
+            s.points,
+            s.real[0],
+            s.real[1],
+            s.cov[(0, 0)].sqrt(),
+            s.cov[(1, 1)].sqrt()
+        );
+    }
+    for p in &poles {
+        println!(
+            "pole at ({:.3}, {:.3}) radius {:.3} m, {} points",
+            p.centre.x, p.centre.y, p.radius, p.points
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,428 @@
+//! CARMEN laser logs (plain text or gzip), such as the Radish "corrected" logs.
+//!
+//! Lines read (fields separated by whitespace):
+//!
+//! - `FLASER n r_1 .. r_n x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname
+//!   logger_timestamp`: front laser. The line has no field of view; the beams are taken to span
+//!   180 degrees starting at -90 degrees (on the robot's right), spaced `pi / (n - 1)` for an
+//!   odd count (181, 361: both ends included) and `pi / n` for an even count (180, 360: the
+//!   SICK's half-open sweep). This is a heuristic: nothing in the line says which it is.
+//! - `RLASER`: the same layout, for a rear laser facing backwards.
+//! - `ROBOTLASER1 laser_type start_angle field_of_view angular_resolution maximum_range
+//!   accuracy remission_mode n r_1 .. r_n m rem_1 .. rem_m laser_x laser_y laser_theta robot_x
+//!   robot_y robot_theta laser_tv laser_rv forward_safety_dist side_safety_dist turn_axis
+//!   ipc_timestamp ipc_hostname logger_timestamp`: the beams start at `start_angle`, spaced by
+//!   `angular_resolution`; the mount is the laser pose relative to the robot pose.
+//! - `ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp`: consecutive
+//!   poses give [`PoseIncrement`]s.
+//!
+//! Every other line (`NEFF`, `PARAM`, `SYNC`, `TRUEPOS`, `#` comments, ...) is skipped and
+//! counted in [`Dataset::skipped`] by its first word (comments under `"#"`); blank lines are
+//! ignored.
+//!
+//! **Poses are references, not truth.** The robot pose of a laser line becomes an
+//! [`Event::GroundTruth`] with [`TruthKind::Reference`]: in the Radish "corrected" logs it is
+//! the output of another SLAM system (GMapping), written into both the `x y theta` and the
+//! `odom_*` fields. Their `ODOM` lines are close to those corrected poses too, so the motion
+//! increments of these logs are not raw odometry.
+//!
+//! **Times are line numbers** ([`Clock::Sequence`]): the timestamps of these logs are often
+//! zero, low-precision or wrapping, so an event's time is the 1-based number of its line.
+
+use std::path::Path;
+
+use slam_core::nalgebra::Vector3;
+use slam_core::{Pose2, Pose3};
+
+use super::{Fields, at, count_skipped, numbered_lines, read_text};
+use crate::error::{Result, SensorError};
+use crate::events::{Clock, Dataset, Event, TruthKind};
+use crate::odometry::{OdometryNoise, PoseIncrement};
+use crate::scan::LaserScan;
+
+/// How to read a CARMEN log.
+#[derive(Clone, Debug)]
+pub struct CarmenOptions {
+    /// Readings at or above this are "no return", m. `None`: a `ROBOTLASER1` line's own
+    /// `maximum_range` when positive, otherwise the largest range found on any laser line of
+    /// the file (max-range readings are logged as the sensor maximum, e.g. 81.83 m, so they
+    /// become invalid; the cost is that the single farthest genuine return, if any reaches that
+    /// value, is dropped too).
+    pub max_range: Option<f64>,
+    /// Readings at or below this are invalid, m. Default 0.
+    pub min_range: f64,
+    /// Mount of the front laser (`FLASER`). Default: the robot origin, facing forward.
+    pub front_laser: Pose3,
+    /// Mount of the rear laser (`RLASER`). Default: the robot origin, facing backwards (yaw pi).
+    pub rear_laser: Pose3,
+    /// Noise of the `ODOM` pose increments.
+    pub odometry_noise: OdometryNoise,
+}
+
+impl Default for CarmenOptions {
+    fn default() -> Self {
+        CarmenOptions {
+            max_range: None,
+            min_range: 0.0,
+            front_laser: Pose3::identity(),
+            rear_laser: Pose3::new(Vector3::zeros(), std::f64::consts::PI, 0.0, 0.0),
+            odometry_noise: OdometryNoise::default(),
+        }
+    }
+}
+
+/// A laser line before its maximum range is known.
+struct LaserLine {
+    ranges: Vec<f64>,
+    angle_min: f64,
+    angle_increment: f64,
+    /// The line's own maximum range (`ROBOTLASER1`), when positive.
+    max_range: Option<f64>,
+    robot_from_sensor: Pose3,
+    robot_pose: Pose2,
+}
+
+enum Record {
+    Laser(LaserLine),
+    Odometry(Pose2),
+}
+
+/// Reads a CARMEN log, plain or gzip-compressed (detected by its magic bytes).
+///
+/// Each laser line gives an [`Event::Scan`] followed by an [`Event::GroundTruth`] of kind
+/// [`TruthKind::Reference`] with the line's robot pose; each `ODOM` line after the first gives
+/// an [`Event::Motion`] with the [`PoseIncrement`] from the previous `ODOM` pose. Event times
+/// are line numbers. Known lines with the wrong field count or with non-numeric or non-finite
+/// numbers are errors naming `file:line`.
+///
+/// ```
+/// use slam_sensors::data::{CarmenOptions, read_carmen};
+/// let path = std::env::temp_dir().join(format!("carmen-doc-{}.log", std::process::id()));
+/// std::fs::write(&path, "# a comment\n\
+///     ODOM 0 0 0 0 0 0 1.0 host 1.0\n\
+///     FLASER 3 1.0 2.0 5.0 0.1 0 0 0.1 0 0 1.5 host 1.5\n\
+///     ODOM 0.1 0 0 0 0 0 2.0 host 2.0\n").unwrap();
+/// let data = read_carmen(&path, &CarmenOptions::default()).unwrap();
+/// let counts = data.counts();
+/// assert_eq!((counts.scans, counts.ground_truth, counts.motion), (1, 1, 1));
+/// assert_eq!(data.skipped["#"], 1);
+/// assert_eq!(data.events[0].time, 3.0); // the FLASER line
+/// # std::fs::remove_file(&path).unwrap();
+/// ```
+pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<Dataset> {
+    check_options(options)?;
+    let text = read_text(path)?;
+    let name = path
+        .file_name()
+        .unwrap_or(path.as_os_str())
+        .to_string_lossy();
+    let mut dataset = Dataset::new(name, Clock::Sequence);
+    let mut records = Vec::new();
+    for (line, content) in numbered_lines(&text) {
+        let fields = Fields::whitespace(path, line, content);
+        match parse_line(&fields, options)? {
+            Some(record) => records.push((line, record)),
+            None if content.trim_start().starts_with('#') => count_skipped(&mut dataset, "#"),
+            None if fields.len() > 0 => count_skipped(&mut dataset, fields.first()),
+            None => {}
+        }
+    }
+    let file_max = largest_range(&records);
+    let mut previous_odometry: Option<Pose2> = None;
+    for (line, record) in records {
+        let time = line as f64;
+        match record {
+            Record::Laser(laser) => {
+                let max_range = options.max_range.or(laser.max_range).unwrap_or(file_max);
+                let pose = laser.robot_pose;
+                let (scan, robot_from_sensor) =
+                    to_scan(laser, options.min_range, max_range).map_err(|e| at(path, line, e))?;
+                dataset.push(
+                    time,
+                    Event::Scan {
+                        scan,
+                        robot_from_sensor,
+                    },
+                );
+                dataset.push(
+                    time,
+                    Event::GroundTruth {
+                        pose,
+                        kind: TruthKind::Reference,
+                    },
+                );
+            }
+            Record::Odometry(pose) => {
+                if let Some(previous) = previous_odometry {
+                    let step = PoseIncrement::between(&previous, &pose, &options.odometry_noise)
+                        .map_err(|e| at(path, line, e))?;
+                    dataset.push(time, Event::Motion(Box::new(step)));
+                }
+                previous_odometry = Some(pose);
+            }
+        }
+    }
+    Ok(dataset)
+}
+
+fn check_options(options: &CarmenOptions) -> Result<()> {
+    let min_ok = options.min_range.is_finite() && options.min_range >= 0.0;
+    let max_ok = options
+        .max_range
+        .is_none_or(|m| m.is_finite() && m > options.min_range);
+    if min_ok && max_ok {
+        Ok(())
+    } else {
+        Err(SensorError::InvalidArgument(format!(
+            "CARMEN range limits: min_range {} must be finite and non-negative, max_range {:?} \
+             finite and above it",
+            options.min_range, options.max_range
+        )))
+    }
+}
+
+/// The largest reading of any laser line (0 when there is none).
+fn largest_range(records: &[(usize, Record)]) -> f64 {
+    records
+        .iter()
+        .filter_map(|(_, r)| match r {
+            Record::Laser(l) => Some(l.ranges.iter().copied().fold(0.0, f64::max)),
+            Record::Odometry(_) => None,
+        })
+        .fold(0.0, f64::max)
+}
+
+fn to_scan(laser: LaserLine, min_range: f64, max_range: f64) -> Result<(LaserScan, Pose3)> {
+    let scan = LaserScan::with_increment(
+        laser.angle_min,
+        laser.angle_increment,
+        laser.ranges,
+        min_range,
+        max_range,
+    )?;
+    Ok((scan, laser.robot_from_sensor))
+}
+
+/// A known line as a record; `None` for a line to skip.
+fn parse_line(fields: &Fields, options: &CarmenOptions) -> Result<Option<Record>> {
+    let record = match fields.first() {
+        "FLASER" => Record::Laser(parse_old_laser(fields, options.front_laser)?),
+        "RLASER" => Record::Laser(parse_old_laser(fields, options.rear_laser)?),
+        "ROBOTLASER1" => Record::Laser(parse_robot_laser(fields)?),
+        "ODOM" => Record::Odometry(parse_odometry(fields)?),
+        _ => return Ok(None),
+    };
+    Ok(Some(record))
+}
+
+/// The beam spacing of an `FLASER`/`RLASER` line with `n` beams over 180 degrees.
+fn old_laser_increment(n: usize) -> f64 {
+    use std::f64::consts::PI;
+    match n {
+        0 | 1 => 0.0,
+        n if n % 2 == 1 => PI / (n - 1) as f64,
+        n => PI / n as f64,
+    }
+}
+
+/// The count field at `index` (e.g. the number of readings), checked against the line length
+/// so that the fields it announces exist.
+fn count_field(fields: &Fields, index: usize, what: &str) -> Result<usize> {
+    let n = fields.usize(index, what)?;
+    if n > fields.len() {
+        return Err(fields.error(format!(
+            "{what} is {n} but the line has only {} fields",
+            fields.len()
+        )));
+    }
+    Ok(n)
+}
+
+fn ranges(fields: &Fields, start: usize, n: usize) -> Result<Vec<f64>> {
+    if n == 0 {
+        return Err(fields.error("a laser line needs at least one reading"));
+    }
+    (start..start + n).map(|i| fields.f64(i, "range")).collect()
+}
+
+/// The trailing `ipc_timestamp ipc_hostname logger_timestamp`, starting at `index`: checked
+/// to be numeric, not used.
+fn check_timestamps(fields: &Fields, index: usize) -> Result<()> {
+    fields.f64(index, "ipc_timestamp")?;
+    fields.f64(index + 2, "logger_timestamp")?;
+    Ok(())
+}
+
+fn parse_old_laser(fields: &Fields, mount: Pose3) -> Result<LaserLine> {
+    let tag = fields.first();
+    let n = count_field(fields, 1, "number of readings")?;
+    fields.expect_len(n + 11, tag)?;
+    let ranges = ranges(fields, 2, n)?;
+    let [x, y, theta] = fields.f64s(2 + n, "robot pose")?;
+    fields.f64s::<3>(5 + n, "odometry pose")?;
+    check_timestamps(fields, 8 + n)?;
+    Ok(LaserLine {
+        ranges,
+        angle_min: -std::f64::consts::FRAC_PI_2,
+        angle_increment: old_laser_increment(n),
+        max_range: None,
+        robot_from_sensor: mount,
+        robot_pose: Pose2::new(x, y, theta),
+    })
+}
+
+fn parse_robot_laser(fields: &Fields) -> Result<LaserLine> {
+    let [
+        _laser_type,
+        start_angle,
+        _fov,
+        resolution,
+        max_range,
+        _accuracy,
+        _mode,
+    ] = fields.f64s(1, "laser parameters")?;
+    let n = count_field(fields, 8, "number of readings")?;
+    let m = count_field(fields, 9 + n, "number of remissions")?;
+    fields.expect_len(n + m + 24, "ROBOTLASER1")?;
+    let ranges = ranges(fields, 9, n)?;
+    for i in 10 + n..10 + n + m {
+        fields.f64(i, "remission")?;
+    }
+    let base = 10 + n + m;
+    let [lx, ly, ltheta, rx, ry, rtheta] = fields.f64s(base, "laser and robot poses")?;
+    fields.f64s::<5>(base + 6, "velocities and safety distances")?;
+    check_timestamps(fields, base + 11)?;
+    if resolution < 0.0 {
+        return Err(fields.error(format!("angular resolution {resolution} is negative")));
+    }
+    let robot_pose = Pose2::new(rx, ry, rtheta);
+    let mount = robot_pose.between(&Pose2::new(lx, ly, ltheta));
+    Ok(LaserLine {
+        ranges,
+        angle_min: start_angle,
+        angle_increment: resolution,
+        max_range: (max_range > 0.0).then_some(max_range),
+        robot_from_sensor: mount.to_pose3(0.0),
+        robot_pose,
+    })
+}
+
+fn parse_odometry(fields: &Fields) -> Result<Pose2> {
+    fields.expect_len(10, "ODOM")?;
+    let [x, y, theta] = fields.f64s(1, "odometry pose")?;
+    fields.f64s::<3>(4, "velocities")?;
+    check_timestamps(fields, 7)?;
+    Ok(Pose2::new(x, y, theta))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    fn read(name: &str, text: &str, options: &CarmenOptions) -> Result<Dataset> {
+        let dir = super::super::test_dir(&format!("carmen-{name}"));
+        let path = dir.join(format!("{name}.log"));
+        std::fs::write(&path, text).unwrap();
+        read_carmen(&path, options)
+    }
+
+    #[test]
+    fn beam_spacing_heuristic() {
+        assert!((old_laser_increment(181) - PI / 180.0).abs() < 1e-15);
+        assert!((old_laser_increment(180) - PI / 180.0).abs() < 1e-15);
+        assert!((old_laser_increment(361) - PI / 360.0).abs() < 1e-15);
+        assert_eq!(old_laser_increment(1), 0.0);
+    }
+
+    #[test]
+    fn rear_laser_and_robot_laser_mounts() {
+        let text = "RLASER 2 1.0 2.0 1 2 0.5 1 2 0.5 0 h 0\n\
+                    ROBOTLASER1 0 -1.5 3.0 0.5 30 0.01 0 3 1 2 3 0 2 1 0.5 1 0 0 0 0 0 0 0 0 h 0\n";
+        let data = read("mounts", text, &CarmenOptions::default()).unwrap();
+        let Event::Scan {
+            robot_from_sensor,
+            scan,
+        } = &data.events[0].event
+        else {
+            panic!()
+        };
+        assert!((robot_from_sensor.yaw.abs() - PI).abs() < 1e-12);
+        assert_eq!(scan.max_range, 3.0); // the largest reading of the file
+        let Event::Scan {
+            robot_from_sensor,
+            scan,
+        } = &data.events[2].event
+        else {
+            panic!()
+        };
+        assert!((robot_from_sensor.translation.x - 1.0).abs() < 1e-12);
+        assert!((robot_from_sensor.translation.y - 1.0).abs() < 1e-12);
+        assert!((robot_from_sensor.yaw - 0.5).abs() < 1e-12);
+        assert_eq!(
+            (scan.angle_min, scan.angle_increment, scan.max_range),
+            (-1.5, 0.5, 30.0)
+        );
+        let Event::GroundTruth { pose, kind } = &data.events[1].event else {
+            panic!()
+        };
+        assert_eq!(
+            (*pose, *kind),
+            (Pose2::new(1.0, 2.0, 0.5), TruthKind::Reference)
+        );
+    }
+
+    #[test]
+    fn max_range_readings_are_invalid() {
+        let text = "FLASER 3 1.0 81.83 2.0 0 0 0 0 0 0 0 h 0\n";
+        let data = read("maxrange", text, &CarmenOptions::default()).unwrap();
+        let Event::Scan { scan, .. } = &data.events[0].event else {
+            panic!()
+        };
+        assert_eq!(scan.points().len(), 2);
+        assert!(!scan.is_valid(81.83));
+    }
+
+    #[test]
+    fn malformed_lines_name_file_and_line() {
+        let cases = [
+            (
+                "ODOM 0 0 0 0 0 0 0 h\n",
+                ":1: ODOM: expected 10 fields, got 9",
+            ),
+            (
+                "NEFF 3\nFLASER 2 1.0 2.0 0 0 0 0 0 0 0 h\n",
+                ":2: FLASER: expected 13 fields",
+            ),
+            (
+                "FLASER 2 1.0 x 0 0 0 0 0 0 0 h 0\n",
+                ":1: field 4 (range): expected a number, got `x`",
+            ),
+            (
+                "FLASER 2 1.0 nan 0 0 0 0 0 0 0 h 0\n",
+                ":1: field 4 (range): value `nan` is not finite",
+            ),
+            (
+                "FLASER 99999999999 1 h\n",
+                ":1: number of readings is 99999999999",
+            ),
+            (
+                "FLASER 0 0 0 0 0 0 0 0 h 0\n",
+                ":1: a laser line needs at least one reading",
+            ),
+            (
+                "ROBOTLASER1 0 0 3 0.1 30 0 0 2 1 2 1 0\n",
+                ":1: ROBOTLASER1: expected 27 fields, got 13",
+            ),
+        ];
+        for (k, (text, expected)) in cases.iter().enumerate() {
+            let e = read(&format!("bad{k}"), text, &CarmenOptions::default())
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(&format!("bad{k}.log{expected}")),
+                "{e} vs {expected}"
+            );
+        }
+    }
+}

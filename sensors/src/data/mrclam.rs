@@ -1,0 +1,421 @@
+//! UTIAS MR.CLAM dataset 1 (Leung et al., IJRR 2011): five robots, fifteen barcoded
+//! cylindrical landmarks with surveyed positions.
+//!
+//! Files of the dataset folder (header lines start with `#`; columns are separated by tabs
+//! and/or spaces):
+//!
+//! | file | columns | use |
+//! |---|---|---|
+//! | `Barcodes.dat` | subject, barcode | maps the barcodes seen to subjects |
+//! | `Landmark_Groundtruth.dat` | subject, x, y, x_std, y_std | [`Dataset::landmarks`] (id = subject) |
+//! | `Robot{N}_Odometry.dat` | time, v, omega | [`Unicycle`] motion |
+//! | `Robot{N}_Measurement.dat` | time, barcode, range, bearing | [`RangeBearing`] observations |
+//!
+//! Odometry rows are velocity commands (about 66 Hz): row `k` holds from its time to row
+//! `k + 1`'s (the last row gives no motion; rows with equal times give zero-length motion).
+//! Measurements with the same timestamp form one [`Event::Observations`]; subjects 6 to 20
+//! are landmarks and get `landmark_id = Some(subject)`. Measurements of robots (subjects 1 to
+//! 5) are skipped and counted under `"robot"`, measurements of barcodes that `Barcodes.dat`
+//! does not list under `"unknown barcode"`, and measurements of listed subjects outside both
+//! ranges under `"other subject"`. Observation times that fall strictly inside an odometry
+//! interval split it (see [`crate::data`]). Times are Unix seconds ([`Clock::Seconds`]).
+//! There is no robot ground truth here (the Vicon files are not in the store).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use slam_core::nalgebra::Vector2;
+use slam_core::{Observation, Pose3};
+
+use super::{
+    Fields, at, check_sigmas, count_skipped, intervals, merge_by_time, missing, numbered_lines,
+    read_text,
+};
+use crate::error::{Result, SensorError};
+use crate::events::{Clock, Dataset, Event, KnownLandmark};
+use crate::models::RangeBearing;
+use crate::odometry::{Integration, Unicycle};
+
+/// How to read MR.CLAM. The noise values are starting points, not calibrated.
+#[derive(Clone, Debug)]
+pub struct MrclamOptions {
+    /// Standard deviation of the commanded forward speed, m/s. Default 0.1.
+    pub sigma_v: f64,
+    /// Standard deviation of the commanded yaw rate, rad/s. Default 0.2.
+    pub sigma_omega: f64,
+    /// How a command becomes a pose increment. Default [`Integration::Arc`].
+    pub integration: Integration,
+    /// Standard deviation of a range, m. Default 0.1.
+    pub sigma_range: f64,
+    /// Standard deviation of a bearing, rad. Default 0.05.
+    pub sigma_bearing: f64,
+    /// Where the camera sits on the robot. Default: the robot origin (the dataset's ranges and
+    /// bearings are given from the robot centre).
+    pub robot_from_sensor: Pose3,
+}
+
+impl Default for MrclamOptions {
+    fn default() -> Self {
+        MrclamOptions {
+            sigma_v: 0.1,
+            sigma_omega: 0.2,
+            integration: Integration::Arc,
+            sigma_range: 0.1,
+            sigma_bearing: 0.05,
+            robot_from_sensor: Pose3::identity(),
+        }
+    }
+}
+
+/// Subjects 1 to 5 are robots.
+const ROBOTS: std::ops::RangeInclusive<u64> = 1..=5;
+/// Subjects 6 to 20 are landmarks.
+const LANDMARKS: std::ops::RangeInclusive<u64> = 6..=20;
+
+/// One parsed measurement row.
+struct Measurement {
+    line: usize,
+    time: f64,
+    barcode: u64,
+    range: f64,
+    bearing: f64,
+}
+
+/// Reads robot `robot` (1 to 5) of MR.CLAM dataset 1 from the folder `dir`.
+///
+/// A robot outside 1..=5 is an [`SensorError::InvalidArgument`]; a missing file an I/O error
+/// naming it; a malformed line (wrong field count, non-numeric or non-finite value,
+/// non-positive range, times going backwards) an error naming `file:line`.
+pub fn read_mrclam(dir: &Path, robot: u8, options: &MrclamOptions) -> Result<Dataset> {
+    check_options(robot, options)?;
+    let barcodes = read_barcodes(&existing(dir, "Barcodes.dat")?)?;
+    let landmarks = read_landmarks(&existing(dir, "Landmark_Groundtruth.dat")?)?;
+    let odometry_file = existing(dir, &format!("Robot{robot}_Odometry.dat"))?;
+    let odometry = read_odometry(&odometry_file, options)?;
+    let measurement_file = existing(dir, &format!("Robot{robot}_Measurement.dat"))?;
+    let measurements = read_measurements(&measurement_file)?;
+
+    let mut dataset = Dataset::new(format!("MR.CLAM robot {robot}"), Clock::Seconds);
+    dataset.landmarks = landmarks;
+    let points = group_observations(
+        &mut dataset,
+        &measurement_file,
+        &measurements,
+        &barcodes,
+        options,
+    )?;
+    let intervals = intervals(&odometry_file, &odometry)?;
+    merge_by_time(&mut dataset, &intervals, points, |interval, dt| {
+        let (v, omega) = interval.control;
+        unicycle(v, omega, dt, options)
+            .map(|u| Event::Motion(Box::new(u)))
+            .map_err(|e| at(&odometry_file, interval.line, e))
+    })?;
+    Ok(dataset)
+}
+
+fn check_options(robot: u8, options: &MrclamOptions) -> Result<()> {
+    if !ROBOTS.contains(&u64::from(robot)) {
+        return Err(SensorError::InvalidArgument(format!(
+            "MR.CLAM robot must be 1 to 5, got {robot}"
+        )));
+    }
+    if !options.robot_from_sensor.is_finite() {
+        return Err(SensorError::InvalidArgument(
+            "MR.CLAM options: robot_from_sensor must be finite".into(),
+        ));
+    }
+    check_sigmas(
+        "MR.CLAM options",
+        &[
+            ("sigma_range", options.sigma_range),
+            ("sigma_bearing", options.sigma_bearing),
+        ],
+        true,
+    )?;
+    check_sigmas(
+        "MR.CLAM options",
+        &[
+            ("sigma_v", options.sigma_v),
+            ("sigma_omega", options.sigma_omega),
+        ],
+        false,
+    )
+}
+
+/// `dir/name`, or a "not found" error naming it.
+fn existing(dir: &Path, name: &str) -> Result<std::path::PathBuf> {
+    let path = dir.join(name);
+    if path.is_file() {
+        Ok(path)
+    } else {
+        Err(missing(&path, "MR.CLAM file"))
+    }
+}
+
+fn unicycle(v: f64, omega: f64, dt: f64, options: &MrclamOptions) -> Result<Unicycle> {
+    Unicycle::new(
+        v,
+        omega,
+        dt,
+        options.sigma_v,
+        options.sigma_omega,
+        options.integration,
+    )
+}
+
+/// Hands each data line (not a `#` header, not blank) with exactly `columns` fields to `row`.
+fn read_table(
+    path: &Path,
+    columns: usize,
+    what: &str,
+    mut row: impl FnMut(&Fields) -> Result<()>,
+) -> Result<()> {
+    let text = read_text(path)?;
+    for (line, content) in numbered_lines(&text) {
+        let trimmed = content.trim();
+        if trimmed.is_empty() || trimmed.starts_with('#') {
+            continue;
+        }
+        let fields = Fields::whitespace(path, line, content);
+        fields.expect_len(columns, what)?;
+        row(&fields)?;
+    }
+    Ok(())
+}
+
+/// Barcode -> subject.
+fn read_barcodes(path: &Path) -> Result<HashMap<u64, u64>> {
+    let mut map = HashMap::new();
+    read_table(path, 2, "subject barcode", |f| {
+        let subject = f.u64(0, "subject")?;
+        let barcode = f.u64(1, "barcode")?;
+        if map.insert(barcode, subject).is_some() {
+            return Err(f.error(format!("barcode {barcode} is listed twice")));
+        }
+        Ok(())
+    })?;
+    Ok(map)
+}
+
+fn read_landmarks(path: &Path) -> Result<Vec<KnownLandmark>> {
+    let mut landmarks = Vec::new();
+    read_table(path, 5, "subject x y x_std y_std", |f| {
+        let id = f.u64(0, "subject")?;
+        let [x, y, _, _] = f.f64s(1, "landmark")?;
+        landmarks.push(KnownLandmark {
+            id,
+            position: Vector2::new(x, y),
+        });
+        Ok(())
+    })?;
+    Ok(landmarks)
+}
+
+/// `(line, time, (v, omega))` per row; each row's commands are checked.
+fn read_odometry(path: &Path, options: &MrclamOptions) -> Result<Vec<super::ControlRow>> {
+    let mut rows = Vec::new();
+    read_table(path, 3, "time v omega", |f| {
+        let [time, v, omega] = f.f64s(0, "odometry")?;
+        unicycle(v, omega, 0.0, options).map_err(|e| f.wrap(e))?;
+        rows.push((f.line(), time, (v, omega)));
+        Ok(())
+    })?;
+    Ok(rows)
+}
+
+fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
+    let mut rows: Vec<Measurement> = Vec::new();
+    read_table(path, 4, "time barcode range bearing", |f| {
+        let time = f.f64(0, "time")?;
+        let barcode = f.u64(1, "barcode")?;
+        let [range, bearing] = f.f64s(2, "range and bearing")?;
+        if let Some(previous) = rows.last().filter(|p| time < p.time) {
+            return Err(f.error(format!(
+                "time goes backwards: {time} after {}",
+                previous.time
+            )));
+        }
+        rows.push(Measurement {
+            line: f.line(),
+            time,
+            barcode,
+            range,
+            bearing,
+        });
+        Ok(())
+    })?;
+    Ok(rows)
+}
+
+/// One observation event per timestamp with at least one landmark measurement; other
+/// measurements are counted in `dataset.skipped`.
+fn group_observations(
+    dataset: &mut Dataset,
+    file: &Path,
+    measurements: &[Measurement],
+    barcodes: &HashMap<u64, u64>,
+    options: &MrclamOptions,
+) -> Result<Vec<(f64, Event)>> {
+    let mut points: Vec<(f64, Event)> = Vec::new();
+    for group in measurements.chunk_by(|a, b| a.time == b.time) {
+        let mut observations = Vec::new();
+        for m in group {
+            match barcodes.get(&m.barcode) {
+                Some(&subject) if LANDMARKS.contains(&subject) => {
+                    observations.push(observation(file, m, subject, options)?);
+                }
+                Some(subject) if ROBOTS.contains(subject) => count_skipped(dataset, "robot"),
+                Some(_) => count_skipped(dataset, "other subject"),
+                None => count_skipped(dataset, "unknown barcode"),
+            }
+        }
+        if !observations.is_empty() {
+            points.push((group[0].time, Event::Observations(observations)));
+        }
+    }
+    Ok(points)
+}
+
+fn observation(
+    file: &Path,
+    m: &Measurement,
+    subject: u64,
+    options: &MrclamOptions,
+) -> Result<Observation> {
+    let model = RangeBearing::new(
+        m.range,
+        m.bearing,
+        options.sigma_range,
+        options.sigma_bearing,
+    )
+    .map_err(|e| at(file, m.line, e.into()))?;
+    Ok(Observation {
+        robot_from_sensor: options.robot_from_sensor,
+        measurement: Box::new(model),
+        landmark_id: Some(subject),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const HEADER: &str = "# UTIAS\n# produced by\n# Format:\n# columns\n";
+
+    fn write_dir(name: &str, replace: &[(&str, &str)]) -> std::path::PathBuf {
+        let dir = super::super::test_dir(&format!("mrclam-{name}"));
+        let files = [
+            (
+                "Barcodes.dat",
+                "  1 \t   5 \n  2 \t  14 \n  6 \t  72 \n  7 \t  27 \n",
+            ),
+            (
+                "Landmark_Groundtruth.dat",
+                "  6 \t 5.7 \t 4.9 \t 0.0002 \t 0.0004 \n  7 \t 5.2 \t 5.5 \t 0.0001 \t 0.0003 \n",
+            ),
+            (
+                "Robot1_Odometry.dat",
+                "10.000 \t 0.1 \t 0.0 \n10.500 \t 0.2 \t 0.1 \n11.000 \t 0.0 \t 0.0 \n",
+            ),
+            (
+                "Robot1_Measurement.dat",
+                "10.250 \t 72 \t 2.0 \t 0.1 \n10.250 \t 27 \t 3.0 \t -0.1 \n10.250 \t 14 \t 1.0 \t 0.0 \n10.500 \t 99 \t 1.0 \t 0.0 \n10.750 \t 5 \t 1.0 \t 0.0 \n10.750 \t 27 \t 3.0 \t 0.2 \n",
+            ),
+        ];
+        for (file, body) in files {
+            let body = replace
+                .iter()
+                .find(|(f, _)| *f == file)
+                .map_or(body, |(_, b)| b);
+            std::fs::write(dir.join(file), format!("{HEADER}{body}")).unwrap();
+        }
+        dir
+    }
+
+    #[test]
+    fn groups_and_splits() {
+        let dir = write_dir("ok", &[]);
+        let data = read_mrclam(&dir, 1, &MrclamOptions::default()).unwrap();
+        assert_eq!(data.landmarks.len(), 2);
+        let trace: Vec<(f64, usize)> = data
+            .events
+            .iter()
+            .map(|e| match &e.event {
+                Event::Motion(_) => (e.time, 0),
+                Event::Observations(o) => (e.time, o.len()),
+                _ => unreachable!(),
+            })
+            .collect();
+        assert_eq!(
+            trace,
+            [
+                (10.25, 0),
+                (10.25, 2),
+                (10.5, 0),
+                (10.75, 0),
+                (10.75, 1),
+                (11.0, 0)
+            ]
+        );
+        let Event::Observations(o) = &data.events[1].event else {
+            panic!()
+        };
+        assert_eq!((o[0].landmark_id, o[1].landmark_id), (Some(6), Some(7)));
+        assert_eq!(
+            (data.skipped["robot"], data.skipped["unknown barcode"]),
+            (2, 1)
+        );
+    }
+
+    #[test]
+    fn bad_input_is_an_error_naming_file_and_line() {
+        assert!(read_mrclam(&write_dir("robot", &[]), 6, &MrclamOptions::default()).is_err());
+        let e = read_mrclam(&write_dir("missing", &[]), 2, &MrclamOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("Robot2_Odometry.dat"), "{e}");
+        let cases = [
+            (
+                "Robot1_Odometry.dat",
+                "10.0 \t 0.1\n",
+                "Robot1_Odometry.dat:5: time v omega: expected 3 fields, got 2",
+            ),
+            (
+                "Robot1_Odometry.dat",
+                "10.0 0.1 0\n9.0 0.1 0\n",
+                "Robot1_Odometry.dat:6: time goes backwards",
+            ),
+            (
+                "Robot1_Measurement.dat",
+                "10.0 72 abc 0.1\n",
+                "Robot1_Measurement.dat:5: field 3 (range and bearing): expected a number",
+            ),
+            (
+                "Robot1_Measurement.dat",
+                "10.0 72 -1 0.1\n",
+                "Robot1_Measurement.dat:5: range must be positive",
+            ),
+            (
+                "Robot1_Measurement.dat",
+                "10.0 7.5 1 0.1\n",
+                "Robot1_Measurement.dat:5: field 2 (barcode): expected a non-negative integer",
+            ),
+            (
+                "Landmark_Groundtruth.dat",
+                "6 1 inf 0 0\n",
+                "Landmark_Groundtruth.dat:5: field 3 (landmark): value `inf` is not finite",
+            ),
+            (
+                "Barcodes.dat",
+                "1 5\n2 5\n",
+                "Barcodes.dat:6: barcode 5 is listed twice",
+            ),
+        ];
+        for (k, (file, body, expected)) in cases.iter().enumerate() {
+            let dir = write_dir(&format!("bad{k}"), &[(file, body)]);
+            let e = read_mrclam(&dir, 1, &MrclamOptions::default())
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(expected), "{e} vs {expected}");
+        }
+    }
+}

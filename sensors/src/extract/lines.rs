@@ -1,0 +1,447 @@
+//! Scan -> wall segments: split-and-merge with a total-least-squares fit, the covariance of
+//! each line from the range noise, and real / not-real endpoints.
+
+use serde::{Deserialize, Serialize};
+use slam_core::nalgebra::{Matrix2, Vector2};
+
+use crate::models::WallObservation;
+use crate::scan::{LaserScan, ScanPoint};
+
+use super::{Neighbour, clusters, far_or_unknown};
+
+/// Settings of [`extract_segments`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LineExtractorParams {
+    /// Standard deviation of a range reading, m (sets the line covariance and thresholds).
+    pub sigma_range: f64,
+    /// Consecutive points farther apart than `max_gap + gap_per_metre * range` start a new
+    /// cluster, m.
+    pub max_gap: f64,
+    /// See `max_gap`, m per m of range.
+    pub gap_per_metre: f64,
+    /// A cluster splits where a point lies farther than this from the chord, m; at least
+    /// `4 sigma_range` is used.
+    pub split_distance: f64,
+    /// Fewest points in a segment.
+    pub min_points: usize,
+    /// Shortest segment, m.
+    pub min_length: f64,
+    /// Adjacent segments whose ends are this close and whose lines differ by more than
+    /// `min_corner_angle` meet in a corner, m.
+    pub corner_gap: f64,
+    /// Smallest angle between two walls forming a corner, rad.
+    pub min_corner_angle: f64,
+    /// A neighbouring reading at least this far beyond the line's extension shows that the
+    /// wall ends there (a jump edge), m.
+    pub jump: f64,
+    /// Clusters shorter than this that stand free of their surroundings (both neighbouring
+    /// readings farther by `jump`, or no return) are objects such as pillars, not walls, m.
+    pub min_free_standing_length: f64,
+}
+
+impl Default for LineExtractorParams {
+    fn default() -> Self {
+        LineExtractorParams {
+            sigma_range: 0.02,
+            max_gap: 0.3,
+            gap_per_metre: 0.05,
+            split_distance: 0.08,
+            min_points: 8,
+            min_length: 0.4,
+            corner_gap: 0.3,
+            min_corner_angle: 30f64.to_radians(),
+            jump: 0.3,
+            min_free_standing_length: 1.0,
+        }
+    }
+}
+
+/// One extracted segment in the sensor frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExtractedSegment {
+    /// Direction from the sensor to the line, rad.
+    pub alpha: f64,
+    /// Distance from the sensor to the line, m (non-negative).
+    pub rho: f64,
+    /// Covariance of `(alpha, rho)` from the range noise.
+    pub cov: Matrix2<f64>,
+    /// First and last points projected onto the line, in scan order.
+    pub ends: [Vector2<f64>; 2],
+    /// Whether each end is a real end of the wall (corner or jump edge).
+    pub real: [bool; 2],
+    /// Beam indices of the first and last point.
+    pub beams: [usize; 2],
+    /// Number of points.
+    pub points: usize,
+    /// Distance between the end points and their inner neighbours, m: how well each end is
+    /// localized along the wall.
+    pub end_spacing: [f64; 2],
+}
+
+impl ExtractedSegment {
+    /// Length between the projected ends, m.
+    pub fn length(&self) -> f64 {
+        (self.ends[1] - self.ends[0]).norm()
+    }
+
+    /// The [`WallObservation`] of this segment; each end's deviation along the wall is the
+    /// larger of the range noise and the spacing of the points there.
+    pub fn to_observation(&self, sigma_range: f64) -> slam_core::Result<WallObservation> {
+        let sigma_endpoint = self.end_spacing[0]
+            .max(self.end_spacing[1])
+            .max(sigma_range);
+        WallObservation::new(
+            self.alpha,
+            self.rho,
+            self.cov,
+            self.ends,
+            self.real,
+            sigma_endpoint,
+        )
+    }
+}
+
+/// A total-least-squares line fit and its range Jacobian.
+#[derive(Clone, Debug)]
+struct LineFit {
+    normal: Vector2<f64>,
+    rho: f64,
+    centroid: Vector2<f64>,
+    tangent: Vector2<f64>,
+    /// Eigenvalues of the scatter matrix: across (smallest) and along the line.
+    lambda: (f64, f64),
+}
+
+impl LineFit {
+    fn new(points: &[ScanPoint]) -> Option<Self> {
+        let n = points.len() as f64;
+        let centroid = points.iter().map(|p| p.position).sum::<Vector2<f64>>() / n;
+        let mut scatter = Matrix2::zeros();
+        for p in points {
+            let q = p.position - centroid;
+            scatter += q * q.transpose();
+        }
+        let eigen = scatter.symmetric_eigen();
+        let (small, large) = if eigen.eigenvalues[0] <= eigen.eigenvalues[1] {
+            (0, 1)
+        } else {
+            (1, 0)
+        };
+        let mut normal: Vector2<f64> = eigen.eigenvectors.column(small).into_owned();
+        if !normal.iter().all(|v| v.is_finite())
+            || eigen.eigenvalues[large] <= eigen.eigenvalues[small]
+        {
+            return None;
+        }
+        let mut rho = normal.dot(&centroid);
+        if rho < 0.0 {
+            normal = -normal;
+            rho = -rho;
+        }
+        Some(LineFit {
+            tangent: Vector2::new(-normal.y, normal.x),
+            normal,
+            rho,
+            centroid,
+            lambda: (eigen.eigenvalues[small], eigen.eigenvalues[large]),
+        })
+    }
+
+    fn alpha(&self) -> f64 {
+        self.normal.y.atan2(self.normal.x)
+    }
+
+    fn distance(&self, p: &Vector2<f64>) -> f64 {
+        (self.normal.dot(p) - self.rho).abs()
+    }
+
+    fn project(&self, p: &Vector2<f64>) -> Vector2<f64> {
+        p - self.normal * (self.normal.dot(p) - self.rho)
+    }
+
+    /// Covariance of `(alpha, rho)` for independent range errors `sigma` (first-order
+    /// perturbation of the scatter matrix's eigenvector).
+    fn covariance(&self, points: &[ScanPoint], sigma: f64) -> Matrix2<f64> {
+        let n = points.len() as f64;
+        let gap = self.lambda.0 - self.lambda.1; // negative
+        let perp_n = Vector2::new(-self.normal.y, self.normal.x);
+        let mut cov = Matrix2::zeros();
+        for p in points {
+            let u = p.position / p.range; // beam direction
+            let q = p.position - self.centroid;
+            let t = self.tangent;
+            let kappa = (t.dot(&q) * self.normal.dot(&u) + self.normal.dot(&q) * t.dot(&u)) / gap;
+            let j = Vector2::new(
+                perp_n.dot(&t) * kappa,
+                kappa * t.dot(&self.centroid) + self.normal.dot(&u) / n,
+            );
+            cov += j * j.transpose() * (sigma * sigma);
+        }
+        cov
+    }
+}
+
+/// Wall segments of a scan by split-and-merge; max-range and invalid readings are skipped.
+///
+/// Clusters of consecutive valid points are split recursively where a point lies farther
+/// than the split distance from the chord of its cluster part (iterative end-point fit);
+/// adjacent parts whose union still fits one line are merged back; each segment's line is a
+/// total-least-squares fit with its covariance from the range noise. An end is **real** when
+/// it meets the next segment in a corner, or when the neighbouring reading lies beyond the
+/// line's extension (the wall visibly ends there); ends at the edge of the field of view, next
+/// to an occluding object or next to a missing reading are not real. Short clusters standing
+/// free of their surroundings (pillars, trees) are not walls and are left out.
+///
+/// ```
+/// use slam_sensors::{LaserScan, extract::{extract_segments, LineExtractorParams}};
+/// // A wall at x = 2 seen across 90 degrees.
+/// let n = 91;
+/// let ranges = (0..n).map(|i| {
+///     let bearing = -std::f64::consts::FRAC_PI_4 + i as f64 * std::f64::consts::FRAC_PI_2 / 90.0;
+///     2.0 / bearing.cos()
+/// }).collect();
+/// let scan = LaserScan::new(-std::f64::consts::FRAC_PI_4, std::f64::consts::FRAC_PI_4, ranges, 0.0, 30.0).unwrap();
+/// let segments = extract_segments(&scan, &LineExtractorParams::default());
+/// assert_eq!(segments.len(), 1);
+/// assert!((segments[0].rho - 2.0).abs() < 1e-9 && segments[0].alpha.abs() < 1e-9);
+/// assert_eq!(segments[0].real, [false, false]); // both ends at the edge of the field of view
+/// ```
+pub fn extract_segments(scan: &LaserScan, params: &LineExtractorParams) -> Vec<ExtractedSegment> {
+    let points = scan.points();
+    let split = params.split_distance.max(4.0 * params.sigma_range);
+    let mut parts: Vec<(usize, usize)> = Vec::new(); // inclusive index ranges into `points`
+    for (first, last) in clusters(&points, scan, params.max_gap, params.gap_per_metre) {
+        if is_free_standing_object(scan, &points[first], &points[last], params) {
+            continue;
+        }
+        let mut cluster_parts = Vec::new();
+        split_recursively(
+            &points,
+            first,
+            last,
+            split,
+            params.min_points,
+            &mut cluster_parts,
+        );
+        parts.extend(merge_collinear(&points, cluster_parts, split));
+    }
+    let mut segments: Vec<ExtractedSegment> = parts
+        .into_iter()
+        .filter_map(|(a, b)| segment(&points[a..=b], params))
+        .filter(|s| s.points >= params.min_points && s.length() >= params.min_length)
+        .collect();
+    mark_real_ends(scan, &mut segments, params);
+    segments
+}
+
+/// A short cluster whose neighbouring readings both lie well behind it: a pillar, a tree or
+/// a box, not a wall.
+fn is_free_standing_object(
+    scan: &LaserScan,
+    first: &ScanPoint,
+    last: &ScanPoint,
+    params: &LineExtractorParams,
+) -> bool {
+    if (last.position - first.position).norm() >= params.min_free_standing_length {
+        return false;
+    }
+    let behind = |beam: Option<usize>, range: f64| match beam.map(|b| far_or_unknown(scan, b)) {
+        Some(Neighbour::Range(r)) => r > range + params.jump,
+        Some(Neighbour::NoReturn) => true,
+        _ => false,
+    };
+    behind(first.index.checked_sub(1), first.range) && behind(Some(last.index + 1), last.range)
+}
+
+fn split_recursively(
+    points: &[ScanPoint],
+    first: usize,
+    last: usize,
+    split: f64,
+    min_points: usize,
+    out: &mut Vec<(usize, usize)>,
+) {
+    if last < first + 1 {
+        return;
+    }
+    let (a, b) = (points[first].position, points[last].position);
+    let chord = b - a;
+    let length = chord.norm();
+    let (worst, distance) = (first + 1..last)
+        .map(|k| {
+            let d = points[k].position - a;
+            let off = if length > 0.0 {
+                (chord.x * d.y - chord.y * d.x).abs() / length
+            } else {
+                d.norm()
+            };
+            (k, off)
+        })
+        .fold((first, 0.0), |best, c| if c.1 > best.1 { c } else { best });
+    if distance > split && worst > first && worst < last {
+        split_recursively(points, first, worst, split, min_points, out);
+        split_recursively(points, worst, last, split, min_points, out);
+    } else if last + 1 - first >= min_points.clamp(2, 3) {
+        out.push((first, last));
+    }
+}
+
+/// Merges neighbouring parts of one cluster whose union fits one line within the split
+/// distance.
+fn merge_collinear(
+    points: &[ScanPoint],
+    parts: Vec<(usize, usize)>,
+    split: f64,
+) -> Vec<(usize, usize)> {
+    let mut merged: Vec<(usize, usize)> = Vec::with_capacity(parts.len());
+    for part in parts {
+        if let Some(last) = merged.last_mut() {
+            let adjacent = part.0 <= last.1 + 1;
+            if adjacent {
+                let union = &points[last.0..=part.1];
+                let fits = LineFit::new(union)
+                    .is_some_and(|fit| union.iter().all(|p| fit.distance(&p.position) <= split));
+                if fits {
+                    last.1 = part.1;
+                    continue;
+                }
+            }
+        }
+        merged.push(part);
+    }
+    merged
+}
+
+fn segment(points: &[ScanPoint], params: &LineExtractorParams) -> Option<ExtractedSegment> {
+    let fit = LineFit::new(points)?;
+    let (first, last) = (points.first()?, points.last()?);
+    let spacing = |a: &ScanPoint, b: Option<&ScanPoint>| {
+        b.map_or(params.sigma_range, |b| (a.position - b.position).norm())
+    };
+    Some(ExtractedSegment {
+        alpha: fit.alpha(),
+        rho: fit.rho,
+        cov: fit.covariance(points, params.sigma_range),
+        ends: [fit.project(&first.position), fit.project(&last.position)],
+        real: [false, false],
+        beams: [first.index, last.index],
+        points: points.len(),
+        end_spacing: [
+            spacing(first, points.get(1)),
+            spacing(last, points.iter().rev().nth(1)),
+        ],
+    })
+}
+
+/// Flags corners between consecutive segments and jump edges.
+fn mark_real_ends(
+    scan: &LaserScan,
+    segments: &mut [ExtractedSegment],
+    params: &LineExtractorParams,
+) {
+    for i in 0..segments.len() {
+        for side in 0..2 {
+            let corner = corner_with_neighbour(segments, i, side, params);
+            let edge = !corner && sees_past_the_end(scan, &segments[i], side, params.jump);
+            segments[i].real[side] = corner || edge;
+        }
+    }
+}
+
+fn corner_with_neighbour(
+    segments: &[ExtractedSegment],
+    i: usize,
+    side: usize,
+    params: &LineExtractorParams,
+) -> bool {
+    let neighbour = if side == 0 {
+        i.checked_sub(1)
+    } else {
+        Some(i + 1)
+    };
+    let Some(other) = neighbour.and_then(|j| segments.get(j)) else {
+        return false;
+    };
+    let mine = segments[i].ends[side];
+    let theirs = other.ends[1 - side];
+    let angle = (segments[i].alpha - other.alpha).sin().abs().asin();
+    let close = (mine - theirs).norm() <= params.corner_gap;
+    close && angle >= params.min_corner_angle
+}
+
+/// Whether the reading just outside `side` of the segment lies beyond the line's extension.
+fn sees_past_the_end(scan: &LaserScan, segment: &ExtractedSegment, side: usize, jump: f64) -> bool {
+    let beam = segment.beams[side];
+    let next = if side == 0 {
+        beam.checked_sub(1)
+    } else {
+        Some(beam + 1)
+    };
+    let Some(next) = next.filter(|&b| b < scan.ranges.len()) else {
+        return false; // edge of the field of view
+    };
+    let bearing = scan.bearing(next);
+    let cos = (bearing - segment.alpha).cos();
+    let line_range = if cos > 1e-3 {
+        segment.rho / cos
+    } else {
+        f64::INFINITY
+    };
+    match far_or_unknown(scan, next) {
+        Neighbour::Range(r) => r > line_range + jump,
+        // No return: the wall would have been seen there had it continued within range.
+        Neighbour::NoReturn => line_range + jump < scan.max_range,
+        Neighbour::Unknown => false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use slam_core::nalgebra::DVector;
+    use slam_core::testing::numeric_jacobian;
+
+    fn points_from(ranges: &[f64], bearings: &[f64]) -> Vec<ScanPoint> {
+        ranges
+            .iter()
+            .zip(bearings)
+            .enumerate()
+            .map(|(index, (&range, &bearing))| ScanPoint {
+                index,
+                range,
+                bearing,
+                position: Vector2::new(range * bearing.cos(), range * bearing.sin()),
+            })
+            .collect()
+    }
+
+    /// The analytic covariance is J J^T sigma^2 with J the derivative of (alpha, rho) w.r.t.
+    /// the ranges: check J against central differences of the fit.
+    #[test]
+    fn line_covariance_matches_numeric_jacobian() {
+        let bearings: Vec<f64> = (0..12).map(|i| -0.4 + 0.07 * i as f64).collect();
+        let ranges: Vec<f64> = bearings
+            .iter()
+            .enumerate()
+            .map(|(i, b)| 3.0 / (b - 0.2).cos() + 0.01 * ((i * 7 % 5) as f64 - 2.0))
+            .collect();
+        let fit_of = |r: &DVector<f64>| {
+            let fit = LineFit::new(&points_from(r.as_slice(), &bearings)).unwrap();
+            DVector::from_vec(vec![fit.alpha(), fit.rho])
+        };
+        let r0 = DVector::from_vec(ranges.clone());
+        let j = numeric_jacobian(&r0, 1e-7, fit_of);
+        let numeric = &j * j.transpose() * 0.02f64.powi(2);
+        let analytic = LineFit::new(&points_from(&ranges, &bearings))
+            .unwrap()
+            .covariance(&points_from(&ranges, &bearings), 0.02);
+        assert!(
+            (numeric[(0, 0)] - analytic[(0, 0)]).abs()
+                < 1e-6 * analytic[(0, 0)].abs().max(1e-12) + 1e-12,
+            "{numeric} vs {analytic}"
+        );
+        let diff = (Matrix2::from_column_slice(numeric.as_slice()) - analytic).amax();
+        assert!(diff < 1e-4 * analytic.amax(), "{numeric} vs {analytic}");
+    }
+}

@@ -1,0 +1,332 @@
+//! The simulator, the embedded default world: a robot follows waypoints through a world of
+//! walls, poles, ceiling lines and lamps, and produces, seeded and reproducibly, noisy wheel
+//! odometry, laser scans by ray casting, ceiling-camera images, and its true poses.
+
+pub mod raycast;
+pub mod render;
+mod world;
+
+pub use world::{
+    CameraSpec, CeilingLineSpec, DEFAULT_WORLD_TOML, LampSpec, LaserSpec, OdometrySpec, PoleSpec,
+    RobotSpec, TrueMap, WallChain, World,
+};
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use slam_core::nalgebra::{Vector2, Vector3};
+use slam_core::{Pose2, RobotPose, wrap_angle};
+
+use crate::error::{Result, SensorError};
+use crate::events::{Clock, Dataset, Event, KnownLandmark, TruthKind};
+use crate::odometry::{Integration, Unicycle};
+use crate::scan::LaserScan;
+use render::{Ceiling, render_ceiling};
+
+/// Most steps a simulation may take before giving up on reaching its waypoints.
+pub const MAX_STEPS: usize = 200_000;
+
+/// A simulated run: the event stream, the true trajectory and the true map.
+#[derive(Debug)]
+pub struct Simulation {
+    /// Odometry, scans, images and ground truth, in time order.
+    pub dataset: Dataset,
+    /// The true pose at every step (step k at time k dt).
+    pub trajectory: Vec<Pose2>,
+    /// The world's true map.
+    pub truth: TrueMap,
+}
+
+/// One step of the driven path: the true speed and yaw rate that lead to the next pose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Control {
+    v: f64,
+    omega: f64,
+}
+
+/// Simulates `world` with the random seed `seed`: the same world and seed give the same run.
+///
+/// ```
+/// use slam_sensors::sim::{simulate, World};
+/// let mut world = World::default_world();
+/// world.robot.waypoints.truncate(1); // a short drive east along the corridor
+/// let run = simulate(&world, 7).unwrap();
+/// assert_eq!(run.trajectory.len(), run.dataset.counts().ground_truth);
+/// ```
+pub fn simulate(world: &World, seed: u64) -> Result<Simulation> {
+    world.validate()?;
+    let (trajectory, controls) = drive(world)?;
+    let truth = world.true_map();
+    let dt = world.robot.dt;
+    let mut odometry_rng = stream(seed, 1);
+    let mut laser_rng = stream(seed, 2);
+    let mut camera_rng = stream(seed, 3);
+    let ceiling = Ceiling {
+        lines: truth.ceiling_lines.clone(),
+        lamps: world
+            .lamps
+            .iter()
+            .map(|l| (Vector3::new(l.x, l.y, l.height), l.radius))
+            .collect(),
+    };
+    let mut dataset = Dataset::new(format!("simulated {}", world.name), Clock::Seconds);
+    dataset.landmarks = truth
+        .poles
+        .iter()
+        .enumerate()
+        .map(|(i, (c, _))| KnownLandmark {
+            id: i as u64,
+            position: *c,
+        })
+        .collect();
+    for (k, pose) in trajectory.iter().enumerate() {
+        let time = k as f64 * dt;
+        if k > 0 {
+            let motion = noisy_odometry(&controls[k - 1], world, &mut odometry_rng)?;
+            dataset.push(time, Event::Motion(Box::new(motion)));
+        }
+        dataset.push(
+            time,
+            Event::GroundTruth {
+                pose: *pose,
+                kind: TruthKind::True,
+            },
+        );
+        if let Some(laser) = world.laser.as_ref().filter(|l| k % l.every == 0) {
+            let scan = cast_scan(pose, laser, &truth, &mut laser_rng)?;
+            dataset.push(
+                time,
+                Event::Scan {
+                    scan,
+                    robot_from_sensor: laser.robot_from_sensor(),
+                },
+            );
+        }
+        if let Some(camera) = world.camera.as_ref().filter(|c| k % c.every == 0) {
+            let world_from_camera = pose.world_from_sensor(&camera.robot_from_sensor());
+            let image = render_ceiling(&world_from_camera, camera, &ceiling, &mut camera_rng);
+            dataset.push(
+                time,
+                Event::Image {
+                    image,
+                    camera: camera.intrinsics,
+                    robot_from_sensor: camera.robot_from_sensor(),
+                },
+            );
+        }
+    }
+    Ok(Simulation {
+        dataset,
+        trajectory,
+        truth,
+    })
+}
+
+/// An independent random stream per purpose, so that e.g. adding a camera does not change
+/// the laser noise.
+fn stream(seed: u64, purpose: u64) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(purpose);
+    rng
+}
+
+/// Drives the waypoints: turn towards the next one (proportional yaw rate, limited), slow down
+/// while the heading error is large, integrate exact arcs.
+fn drive(world: &World) -> Result<(Vec<Pose2>, Vec<Control>)> {
+    let robot = &world.robot;
+    let max_yaw_rate = robot.max_yaw_rate_deg.to_radians();
+    let mut pose = world.start_pose();
+    let mut poses = vec![pose];
+    let mut controls = Vec::new();
+    let targets = (0..robot.laps).flat_map(|_| robot.waypoints.iter());
+    for target in targets {
+        let target = Vector2::new(target[0], target[1]);
+        loop {
+            let to_target = target - pose.translation();
+            if to_target.norm() < robot.reach {
+                break;
+            }
+            if poses.len() > MAX_STEPS {
+                return Err(SensorError::World(format!(
+                    "{}: the robot did not reach waypoint ({}, {}) within {MAX_STEPS} steps",
+                    world.name, target.x, target.y
+                )));
+            }
+            let error = wrap_angle(to_target.y.atan2(to_target.x) - pose.theta);
+            let omega = (2.0 * error).clamp(-max_yaw_rate, max_yaw_rate);
+            let v = robot.speed
+                * error.cos().max(0.0).powi(4)
+                * (to_target.norm() / 0.5).clamp(0.2, 1.0);
+            let control = Control { v, omega };
+            pose = advance(&pose, &control, robot.dt);
+            poses.push(pose);
+            controls.push(control);
+        }
+    }
+    Ok((poses, controls))
+}
+
+fn advance(pose: &Pose2, control: &Control, dt: f64) -> Pose2 {
+    // Noise-free: the exact arc of the unicycle.
+    match Unicycle::new(control.v, control.omega, dt, 0.0, 0.0, Integration::Arc) {
+        Ok(step) => slam_core::MotionModel::apply_control(&step, pose, &step_control(&step))
+            .unwrap_or(*pose),
+        Err(_) => *pose,
+    }
+}
+
+fn step_control(step: &Unicycle) -> slam_core::nalgebra::DVector<f64> {
+    slam_core::MotionModel::<Pose2>::control(step)
+}
+
+/// The odometry of one step: the true speed and yaw rate plus noise, with the noise model the
+/// filter should assume.
+fn noisy_odometry(control: &Control, world: &World, rng: &mut ChaCha8Rng) -> Result<Unicycle> {
+    let sigma_v = world.odometry.sigma_v;
+    let sigma_omega = world.odometry.sigma_omega_deg.to_radians();
+    let v = control.v + gaussian(rng, sigma_v);
+    let omega = control.omega + gaussian(rng, sigma_omega);
+    Unicycle::new(
+        v,
+        omega,
+        world.robot.dt,
+        sigma_v,
+        sigma_omega,
+        Integration::Arc,
+    )
+}
+
+fn gaussian(rng: &mut ChaCha8Rng, sigma: f64) -> f64 {
+    Normal::new(0.0, sigma).map_or(0.0, |n| n.sample(rng))
+}
+
+/// A level laser scan from `pose` by ray casting, with range noise; no return beyond the
+/// maximum range (reported as the maximum range).
+fn cast_scan(
+    pose: &Pose2,
+    laser: &LaserSpec,
+    truth: &TrueMap,
+    rng: &mut ChaCha8Rng,
+) -> Result<LaserScan> {
+    let sensor = pose.compose(&Pose2::new(
+        laser.position[0],
+        laser.position[1],
+        laser.yaw_deg.to_radians(),
+    ));
+    let fov = laser.fov_deg.to_radians();
+    let increment = fov / (laser.beams - 1) as f64;
+    let angle_min = -fov / 2.0;
+    let origin = sensor.translation();
+    let ranges = (0..laser.beams)
+        .map(|i| {
+            let bearing = sensor.theta + angle_min + increment * i as f64;
+            let direction = Vector2::new(bearing.cos(), bearing.sin());
+            match raycast::cast(&origin, &direction, &truth.walls, &truth.poles) {
+                Some(t) if t < laser.max_range => {
+                    let noisy = t + gaussian(rng, laser.sigma_range);
+                    if noisy >= laser.max_range {
+                        laser.max_range
+                    } else {
+                        noisy.max(1e-3)
+                    }
+                }
+                _ => laser.max_range,
+            }
+        })
+        .collect();
+    LaserScan::with_increment(angle_min, increment, ranges, 0.0, laser.max_range)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_world_parses_and_is_an_office_floor() {
+        let world = World::from_toml(DEFAULT_WORLD_TOML, "default").unwrap();
+        let map = world.true_map();
+        let (mut lo, mut hi) = (
+            Vector2::repeat(f64::INFINITY),
+            Vector2::repeat(f64::NEG_INFINITY),
+        );
+        for (a, b) in &map.walls {
+            lo = lo.inf(a).inf(b);
+            hi = hi.sup(a).sup(b);
+        }
+        assert_eq!((hi - lo), Vector2::new(40.0, 15.0));
+        assert!(
+            map.walls.len() >= 20 && map.corners.len() >= 8,
+            "{} walls, {} corners",
+            map.walls.len(),
+            map.corners.len()
+        );
+        assert!(map.poles.len() >= 3 && map.ceiling_lines.len() >= 5 && map.lamps.len() >= 10);
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_errors() {
+        let with_typo =
+            DEFAULT_WORLD_TOML.replace("name = \"office\"", "name = \"office\"\ncolour = 3");
+        let e = World::from_toml(&with_typo, "typo.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("typo.toml") && e.contains("colour"), "{e}");
+        let negative = DEFAULT_WORLD_TOML.replace("radius = 0.25", "radius = -0.25");
+        assert!(World::from_toml(&negative, "neg.toml").is_err());
+    }
+
+    #[test]
+    fn the_default_drive_stays_clear_of_walls_and_pillars_and_closes_its_loop() {
+        let world = World::default_world();
+        let (poses, _) = drive(&world).unwrap();
+        let map = world.true_map();
+        let clearance = poses
+            .iter()
+            .map(|p| {
+                let q = p.translation();
+                let walls = map.walls.iter().map(|(a, b)| {
+                    let e = b - a;
+                    let t = ((q - a).dot(&e) / e.norm_squared()).clamp(0.0, 1.0);
+                    (q - (a + e * t)).norm()
+                });
+                let poles = map.poles.iter().map(|(c, r)| (q - c).norm() - r);
+                walls.chain(poles).fold(f64::INFINITY, f64::min)
+            })
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            clearance > 0.3,
+            "the robot comes within {clearance} m of an obstacle"
+        );
+        // It passes its start again (the corridor loop) after having gone far away.
+        let start = poses[0].translation();
+        let far = poses
+            .iter()
+            .position(|p| (p.translation() - start).norm() > 20.0)
+            .unwrap();
+        assert!(
+            poses[far..]
+                .iter()
+                .any(|p| (p.translation() - start).norm() < 1.0)
+        );
+    }
+
+    #[test]
+    fn same_seed_same_run_different_seed_different_noise() {
+        let mut world = World::default_world();
+        world.robot.waypoints.truncate(1);
+        let scans = |seed| {
+            simulate(&world, seed)
+                .unwrap()
+                .dataset
+                .events
+                .into_iter()
+                .filter_map(|e| match e.event {
+                    Event::Scan { scan, .. } => Some(scan.ranges),
+                    _ => None,
+                })
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(scans(3), scans(3));
+        assert_ne!(scans(3), scans(4));
+    }
+}

@@ -55,8 +55,13 @@ pub fn run(args: &CameraArgs) -> Result<()> {
         path: args.out.display().to_string(),
         message: e,
     };
-    {
-        let root = BitMapBackend::new(&args.out, (w, h)).into_drawing_area();
+    if args.out.extension().and_then(|e| e.to_str()) != Some("png") {
+        return Err(error("the camera figure is a PNG: name it *.png".into()));
+    }
+    // Drawn beside the target and renamed into place: written completely or not at all.
+    let temporary = args.out.with_extension("partial.png");
+    let drawn = (|| -> Result<()> {
+        let root = BitMapBackend::new(&temporary, (w, h)).into_drawing_area();
         for y in 0..image.height {
             for x in 0..image.width {
                 let v = image.data[(y * image.width + x) as usize];
@@ -84,8 +89,13 @@ pub fn run(args: &CameraArgs) -> Result<()> {
             root.draw(&Circle::new(px(&lamp.centre), 8, GREEN.stroke_width(2)))
                 .map_err(|e| error(e.to_string()))?;
         }
-        root.present().map_err(|e| error(e.to_string()))?;
+        root.present().map_err(|e| error(e.to_string()))
+    })();
+    if let Err(e) = drawn {
+        let _ = std::fs::remove_file(&temporary);
+        return Err(e);
     }
+    std::fs::rename(&temporary, &args.out).map_err(|e| error(e.to_string()))?;
     println!(
         "image {} of {count}: {} lines, {} lamps; drawn to {}",
         args.image,

@@ -3,8 +3,10 @@
 mod camera;
 mod data;
 mod error;
+mod eval;
 mod extract;
 mod plot;
+mod simulate;
 
 use clap::{Parser, Subcommand};
 
@@ -22,6 +24,10 @@ enum Command {
     Extract(extract::ExtractArgs),
     /// Run the ceiling-image front-end on one image and draw what it finds.
     Camera(camera::CameraArgs),
+    /// Write a simulated run as files other tools read (rb2d, CARMEN, TUM ground truth).
+    Simulate(simulate::SimulateArgs),
+    /// Compare an estimated trajectory with ground truth (ATE, RPE).
+    Eval(eval::EvalArgs),
 }
 
 fn main() {
@@ -29,6 +35,8 @@ fn main() {
     let result = match &cli.command {
         Command::Extract(args) => extract::run(args),
         Command::Camera(args) => camera::run(args),
+        Command::Simulate(args) => simulate::run(args),
+        Command::Eval(args) => eval::run(args),
     };
     if let Err(error) = result {
         eprintln!("slam: {error}");

@@ -5,6 +5,7 @@
 //! | [`read_carmen`] | CARMEN logs (plain or gzip), e.g. the Radish "corrected" logs | line numbers ([`Clock::Sequence`]) | scans, reference poses, pose increments |
 //! | [`read_victoria_park`] | Victoria Park (`converted/` CSV files) | seconds | Ackermann motion, pole observations, GPS |
 //! | [`read_mrclam`] | UTIAS MR.CLAM dataset 1, one robot | seconds | unicycle motion, range-bearing observations, landmark map |
+//! | [`read_tum`] | TUM trajectories (`t x y z qx qy qz qw`) | seconds | stamped poses (not an event stream) |
 //! | [`read_rb2d`] | rb2d text logs (`shared/formats/rb2d.md`) | `k * dt` seconds | motion, range-bearing observations, true poses, landmark map |
 //!
 //! Conventions shared by every reader:
@@ -22,11 +23,13 @@
 pub mod carmen;
 pub mod mrclam;
 pub mod rb2d;
+pub mod tum;
 pub mod victoria_park;
 
 pub use carmen::{CarmenOptions, read_carmen};
 pub use mrclam::{MrclamOptions, read_mrclam};
 pub use rb2d::read_rb2d;
+pub use tum::{StampedPose, read_tum, write_atomically, write_tum};
 pub use victoria_park::{VictoriaParkOptions, read_victoria_park};
 
 use std::io::Read;

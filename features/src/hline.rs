@@ -263,6 +263,19 @@ impl Feature for HLine {
         Ok(())
     }
 
+    /// The endpoints in this line's order: swapped when they run against it.
+    fn conform(&self, coordinates: Coordinates) -> Coordinates {
+        match coordinates.blocks() {
+            [CoordBlock::Point3(start), CoordBlock::Point3(end)]
+                if (end.xy() - start.xy()).dot(&(self.end().xy() - self.start().xy())) < 0.0 =>
+            {
+                Coordinates::new(vec![CoordBlock::Point3(*end), CoordBlock::Point3(*start)])
+                    .unwrap_or(coordinates)
+            }
+            _ => coordinates,
+        }
+    }
+
     fn active_subspaces(&self) -> Vec<Subspace> {
         self.active.iter().map(|s| s.spec()).collect()
     }

@@ -58,4 +58,10 @@ pub trait Estimator<P: RobotPose> {
 
     /// Covariance of one row group of the map's M-space perturbations, if the estimator has it.
     fn row_covariance(&self, owner: RowOwner) -> Option<DMatrix<f64>>;
+
+    /// The landmark id the data gave a feature (known data association), if any.
+    fn landmark_id(&self, id: crate::FeatureId) -> Option<u64> {
+        let _ = id;
+        None
+    }
 }

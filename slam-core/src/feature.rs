@@ -129,6 +129,21 @@ pub trait Feature: dyn_clone::DynClone + Debug + Send + Sync + Any {
         self.set_coordinates(coordinates)
     }
 
+    /// Prior covariance of the rows that `growth` added (`growth.rows.len()` square), for
+    /// directions the observation that reveals them does not determine; `None` (the default)
+    /// leaves them uninformative, with the estimator's large default variance.
+    fn growth_prior(&self, growth: &Growth) -> Option<DMatrix<f64>> {
+        let _ = growth;
+        None
+    }
+
+    /// `coordinates` of this same feature written in this feature's conventions (a line's
+    /// endpoints in this feature's order, say), for an estimator that re-places the feature
+    /// from elsewhere (triangulation). Default: as given.
+    fn conform(&self, coordinates: Coordinates) -> Coordinates {
+        coordinates
+    }
+
     /// Indices of the blocks that may be shared with other features (default: none).
     fn shareable_blocks(&self) -> Vec<usize> {
         Vec::new()

@@ -15,6 +15,7 @@
 //!   (eq. 16); [`linearize`] gives `J_eta,state = J_eta_o (J_or | J_of B~)` (eqs. 21, 30).
 //! - [`FeatureMap`]: features with shared blocks; one set of rows per shared block.
 //! - [`MotionModel`] (eqs. 25-27) and [`Estimator`].
+//! - [`chi2_quantile`] and [`chi2_cdf`] for gates and consistency bands.
 //! - [`testing`]: the conformance suite every feature and measurement model runs.
 //!
 //! `nalgebra` is re-exported so that every crate uses one version.
@@ -29,6 +30,7 @@ mod map;
 mod measurement;
 mod motion;
 mod pose;
+mod stats;
 pub mod testing;
 mod transform;
 
@@ -38,13 +40,16 @@ pub use coords::{BlockKind, CoordBlock, Coordinates};
 pub use error::{Error, Result, ensure_finite};
 pub use estimator::{Estimator, Observation, UpdateReport};
 pub use feature::{Feature, Growth, Subspace, downcast_feature, downcast_feature_mut, stack_rows};
-pub use map::{FeatureId, FeatureMap, MapLinearization, RowOwner, SharedBlock, SharedBlockId};
+pub use map::{
+    FeatureId, FeatureMap, MapLinearization, RowOwner, RowTransform, SharedBlock, SharedBlockId,
+};
 pub use measurement::{
-    DynMeasurementModel, Innovation, LinearizedMeasurement, MeasurementModel, Triangulation,
-    innovation_at, linearize,
+    DynMeasurementModel, Extension, Innovation, LinearizedMeasurement, MeasurementModel,
+    Triangulation, innovation_at, linearize,
 };
 pub use motion::{MotionModel, MotionPrediction};
 pub use pose::{Pose2, Pose3, RobotPose, SensorPose, wrap_angle};
+pub use stats::{chi2_cdf, chi2_quantile};
 pub use transform::{MapToSensor, SensorFrameCoordinates};
 
 /// Re-exported so that feature implementations outside this crate can use

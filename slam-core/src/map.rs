@@ -31,6 +31,17 @@ pub enum RowOwner {
     Shared(SharedBlockId),
 }
 
+/// A linear map of an estimator's rows: the rows of `owners` (concatenated, with their
+/// sizes) become `matrix` times themselves (see
+/// [`FeatureMap::set_coordinates_outside_mspace`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RowTransform {
+    /// The row owners, in the order of the matrix's rows and columns, with their sizes.
+    pub owners: Vec<(RowOwner, usize)>,
+    /// The square map.
+    pub matrix: DMatrix<f64>,
+}
+
 /// A coordinate block held by several features (a wall corner).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SharedBlock {
@@ -256,6 +267,113 @@ impl FeatureMap {
             id: id.0,
         })?;
         feature.activate(subspace)
+    }
+
+    /// Replaces feature `id` by another feature with the same block layout (e.g. a tentative
+    /// feature by its triangulated version). Features holding a shared block cannot be
+    /// replaced; the caller keeps its estimator rows consistent with the new M-space.
+    pub fn replace(&mut self, id: FeatureId, feature: Box<dyn Feature>) -> Result<()> {
+        let current = self.get(id)?;
+        if self.links[id.0].iter().any(Option::is_some) {
+            return Err(Error::Sharing(format!(
+                "feature {} holds a shared block; it cannot be replaced",
+                id.0
+            )));
+        }
+        if current.coordinates().layout() != feature.coordinates().layout() {
+            return Err(Error::InvalidArgument(format!(
+                "replacing feature {}: block layout {:?} differs from {:?}",
+                id.0,
+                feature.coordinates().layout(),
+                current.coordinates().layout()
+            )));
+        }
+        if (0..feature.coordinates().num_blocks()).any(|k| feature.is_shared(k)) {
+            return Err(Error::Sharing(
+                "a replacement feature must hold no shared block".into(),
+            ));
+        }
+        self.features[id.0] = Some(feature);
+        Ok(())
+    }
+
+    /// Sets the coordinates of feature `id` where they differ only **outside** its M-space:
+    /// `|B (x_new - x_old)| <= tolerance` and shared blocks unchanged (a wall's extent growing
+    /// along its line, section IV).
+    ///
+    /// Returns how the estimator's rows carry over (`None` for a feature without own rows):
+    /// the feature's own rows become `dx_p' = B(x_new) D (B~(x_old) dx_p + sum_k E_k dx_k)`,
+    /// `D` the extension's `d_new_d_old` and `dx_k` the rows of its shared blocks (which stay
+    /// as they are), because the rows now describe the feature at its new coordinates.
+    pub fn set_coordinates_outside_mspace(
+        &mut self,
+        id: FeatureId,
+        extension: crate::Extension,
+        tolerance: f64,
+    ) -> Result<Option<RowTransform>> {
+        let feature = self.get(id)?;
+        let old = feature.coordinates();
+        let coordinates = extension.coordinates;
+        let n = old.dim();
+        let d = &extension.d_new_d_old;
+        if old.layout() != coordinates.layout() || d.shape() != (n, n) {
+            return Err(Error::InvalidArgument(format!(
+                "extension of feature {}: another block layout or a Jacobian of the wrong size",
+                id.0
+            )));
+        }
+        ensure_finite(d.as_slice(), "extension Jacobian")?;
+        for (k, link) in self.links[id.0].iter().enumerate() {
+            if link.is_some() && old.blocks()[k] != coordinates.blocks()[k] {
+                return Err(Error::Sharing(format!(
+                    "block {k} of feature {} is shared and cannot move outside the M-space",
+                    id.0
+                )));
+            }
+        }
+        let change = coordinates.to_vector() - old.to_vector();
+        let own = feature.mspace_dim();
+        let mut candidate = dyn_clone::clone_box(feature);
+        if own == 0 {
+            candidate.set_coordinates(coordinates)?;
+            self.features[id.0] = Some(candidate);
+            return Ok(None);
+        }
+        let observed = feature.projection()? * &change;
+        if observed.amax() > tolerance {
+            return Err(Error::InvalidArgument(format!(
+                "coordinate change of feature {} moves it inside its M-space by {:.3e}",
+                id.0,
+                observed.amax()
+            )));
+        }
+        // Columns: how each old row moves the old coordinates, then through D.
+        let mut owners = vec![(RowOwner::Feature(id), own)];
+        let mut moves = vec![feature.dual()?];
+        for (k, link) in self.links[id.0].iter().enumerate() {
+            if let Some(shared) = link {
+                let dim = old.blocks()[k].dim();
+                let mut e = DMatrix::zeros(n, dim);
+                e.view_mut((old.offset(k), 0), (dim, dim))
+                    .fill_with_identity();
+                owners.push((RowOwner::Shared(*shared), dim));
+                moves.push(e);
+            }
+        }
+        candidate.set_coordinates(coordinates)?;
+        let b_new = candidate.projection()?;
+        let total: usize = owners.iter().map(|(_, k)| k).sum();
+        let mut matrix = DMatrix::identity(total, total);
+        let mut column = 0;
+        for m in &moves {
+            let block = &b_new * d * m;
+            matrix
+                .view_mut((0, column), block.shape())
+                .copy_from(&block);
+            column += m.ncols();
+        }
+        self.features[id.0] = Some(candidate);
+        Ok(Some(RowTransform { owners, matrix }))
     }
 
     /// Applies an estimator's update: `x_f += B~ dx_p` for every owner listed (eq. 24). Own

@@ -86,7 +86,7 @@ impl Innovation {
 /// estimator stores measurements as `Box<dyn DynMeasurementModel>` through the blanket
 /// implementation, which checks the feature type. Run
 /// [`crate::testing::assert_measurement_conforms`] on every implementation.
-pub trait MeasurementModel: Debug + Send + Sync + 'static {
+pub trait MeasurementModel: Clone + Debug + Send + Sync + 'static {
     /// The feature type this measurement observes.
     type Feature: Feature;
 
@@ -118,6 +118,31 @@ pub trait MeasurementModel: Debug + Send + Sync + 'static {
         Vec::new()
     }
 
+    /// Whether this measurement can be of `feature` at all, beyond what the innovation says
+    /// (e.g. a wall segment must overlap the wall's extent, or lie close to it). Data
+    /// association never pairs a measurement with a feature for which this is false. `x_o` is
+    /// the feature in the sensor frame. Default: true.
+    fn plausible(&self, feature: &Self::Feature, x_o: &Coordinates) -> bool {
+        let _ = (feature, x_o);
+        true
+    }
+
+    /// New map-frame coordinates for `feature` that agree with this measurement in
+    /// directions **outside** the feature's M-space, or `None` to leave it as it is: a wall's
+    /// extent grows to cover the measured segment where its endpoint is not estimated
+    /// (section IV: such directions are not part of the estimate). An estimator applies it
+    /// through [`crate::FeatureMap::set_coordinates_outside_mspace`], which checks that
+    /// `B (x_new - x_old)` vanishes and gives the map of the M-space rows onto the new
+    /// coordinates (see [`Extension`]).
+    fn extend(
+        &self,
+        feature: &Self::Feature,
+        world_from_sensor: &Pose3,
+    ) -> Result<Option<Extension>> {
+        let _ = (feature, world_from_sensor);
+        Ok(None)
+    }
+
     /// A feature placed by several measurements of it taken from different sensor poses
     /// (`world_from_sensor`, measurement), for features that one measurement cannot place
     /// (bearing-only lamps, ceiling lines), with the subspaces the views reveal together.
@@ -129,6 +154,23 @@ pub trait MeasurementModel: Debug + Send + Sync + 'static {
         let _ = views;
         Ok(None)
     }
+}
+
+/// A change of a feature's coordinates outside its M-space ([`MeasurementModel::extend`]).
+///
+/// Moving coordinates along unobserved directions changes what the M-space rows mean: a
+/// wall's rows are its rotation and the normal offset **of its centre**, and extending the
+/// wall moves the centre, so the offset at the new centre is less certain than at the old
+/// one when the rotation is uncertain. `d_new_d_old` says how a small change of the old
+/// coordinates carries over to the new ones (a wall end moved a fixed distance along the
+/// wall turns with the wall); the estimator maps its rows by
+/// `T = B(x_new) d_new_d_old B~(x_old)` (see [`crate::FeatureMap::set_coordinates_outside_mspace`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Extension {
+    /// The new coordinates.
+    pub coordinates: Coordinates,
+    /// `d x_new / d x_old` (`dim(x_f)` square).
+    pub d_new_d_old: DMatrix<f64>,
 }
 
 /// A feature placed by triangulation, with the subspaces its views reveal.
@@ -171,6 +213,19 @@ pub trait DynMeasurementModel: Debug + Send + Sync {
         world_from_sensor: &Pose3,
         others: &[(Pose3, &dyn DynMeasurementModel)],
     ) -> Result<Option<Triangulation<Box<dyn Feature>>>>;
+
+    /// [`MeasurementModel::plausible`], false for a feature of another type.
+    fn plausible_dyn(&self, feature: &dyn Feature, x_o: &Coordinates) -> bool;
+
+    /// [`MeasurementModel::extend`], after checking the feature type.
+    fn extend_dyn(
+        &self,
+        feature: &dyn Feature,
+        world_from_sensor: &Pose3,
+    ) -> Result<Option<Extension>>;
+
+    /// A boxed copy (an estimator keeps the views of a feature it triangulates).
+    fn clone_box(&self) -> Box<dyn DynMeasurementModel>;
 
     /// The measurement as `Any`, to recover its concrete type.
     fn as_any(&self) -> &dyn std::any::Any;
@@ -229,6 +284,22 @@ impl<M: MeasurementModel> DynMeasurementModel for M {
             feature: Box::new(t.feature) as Box<dyn Feature>,
             reveals: t.reveals,
         }))
+    }
+
+    fn plausible_dyn(&self, feature: &dyn Feature, x_o: &Coordinates) -> bool {
+        downcast_feature::<M::Feature>(feature).is_some_and(|typed| self.plausible(typed, x_o))
+    }
+
+    fn extend_dyn(
+        &self,
+        feature: &dyn Feature,
+        world_from_sensor: &Pose3,
+    ) -> Result<Option<Extension>> {
+        self.extend(typed_feature::<M>(feature)?, world_from_sensor)
+    }
+
+    fn clone_box(&self) -> Box<dyn DynMeasurementModel> {
+        Box::new(self.clone())
     }
 
     fn as_any(&self) -> &dyn std::any::Any {

@@ -463,6 +463,11 @@ pub trait RobotPose: Copy + Debug + PartialEq + Send + Sync + 'static {
 
     /// The pose with the given parameters (the inverse of [`RobotPose::parameters`]).
     fn from_parameters(parameters: &[f64]) -> Result<Self>;
+
+    /// How the parameters change under a small motion of the whole world in the plane:
+    /// translation along x, along y, and rotation about the z axis through the origin (the
+    /// directions that no measurement of a map can observe).
+    fn planar_motion_generators(&self) -> [Vec<f64>; 3];
 }
 
 impl RobotPose for Pose2 {
@@ -491,6 +496,14 @@ impl RobotPose for Pose2 {
 
     fn parameters(&self) -> Vec<f64> {
         vec![self.x, self.y, self.theta]
+    }
+
+    fn planar_motion_generators(&self) -> [Vec<f64>; 3] {
+        [
+            vec![1.0, 0.0, 0.0],
+            vec![0.0, 1.0, 0.0],
+            vec![-self.y, self.x, 1.0],
+        ]
     }
 
     fn from_parameters(parameters: &[f64]) -> Result<Self> {
@@ -524,6 +537,16 @@ impl RobotPose for Pose3 {
 
     fn parameters(&self) -> Vec<f64> {
         self.to_vector().as_slice().to_vec()
+    }
+
+    /// ZYX Euler angles: a world rotation about z adds to the yaw only.
+    fn planar_motion_generators(&self) -> [Vec<f64>; 3] {
+        let t = self.translation;
+        [
+            vec![1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            vec![0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+            vec![-t.y, t.x, 0.0, 1.0, 0.0, 0.0],
+        ]
     }
 
     fn from_parameters(parameters: &[f64]) -> Result<Self> {

@@ -33,7 +33,7 @@ pub struct StampedPose {
 /// let poses = vec![StampedPose { time: 0.5, pose: Pose2::new(1.0, 2.0, 0.3).to_pose3(0.0) }];
 /// write_tum(&path, &poses).unwrap();
 /// let back = read_tum(&path).unwrap();
-/// assert!((back[0].pose.yaw - 0.3).abs() < 1e-12 && back[0].time == 0.5);
+/// assert!((back[0].pose.yaw - 0.3).abs() < 1e-8 && back[0].time == 0.5);
 /// # std::fs::remove_file(&path).unwrap();
 /// ```
 pub fn read_tum(path: &Path) -> Result<Vec<StampedPose>> {

@@ -3,8 +3,8 @@
 
 use slam_core::nalgebra::{DMatrix, DVector, Matrix2, RowVector2, Vector2};
 use slam_core::{
-    CoordBlock, Coordinates, Error, Feature, Innovation, MeasurementModel, Pose3, Result,
-    ensure_finite, wrap_angle,
+    CoordBlock, Coordinates, Error, Extension, Feature, Innovation, MeasurementModel, Pose3,
+    Result, ensure_finite, wrap_angle,
 };
 use slam_features::Wall;
 use slam_features::wall::{END, LINE, PIVOT, START};
@@ -113,6 +113,28 @@ impl WallObservation {
             [1, 0]
         }
     }
+}
+
+/// How far a measured segment may reach beyond an estimated (real) wall end and still be of
+/// that wall, m: a few endpoint deviations.
+pub const BEYOND_ESTIMATED_END: f64 = 0.3;
+
+/// Largest gap between a measured segment and a wall end that is not estimated for the
+/// segment to still be of that wall, m: less than a doorway, so that the wall on the far
+/// side of a door is a wall of its own.
+pub const MAX_GAP: f64 = 0.5;
+
+/// The measured segment's extent along the wall `start -> end` (frames must agree):
+/// `(lowest, highest)` position along the tangent from `start`.
+fn extent_along(
+    start: &Vector2<f64>,
+    end: &Vector2<f64>,
+    points: &[Vector2<f64>; 2],
+) -> (f64, f64) {
+    let t = (end - start).normalize();
+    let a = t.dot(&(points[0] - start));
+    let b = t.dot(&(points[1] - start));
+    (a.min(b), a.max(b))
 }
 
 /// Whether the wall's endpoint `k` (0 start, 1 end) has an estimated tangential position.
@@ -237,6 +259,78 @@ impl MeasurementModel for WallObservation {
         let b = scan_plane_to_world(world_from_sensor, &on_line(self.endpoints[1]));
         let viewpoint = world_from_sensor.translation.xy();
         Wall::seen_from(a, b, viewpoint).map(Some)
+    }
+
+    /// The measured segment must overlap the wall or lie within [`MAX_GAP`] of an end that
+    /// is not estimated, and may not reach more than [`BEYOND_ESTIMATED_END`] beyond an
+    /// estimated (real) end.
+    fn plausible(&self, wall: &Wall, x_o: &Coordinates) -> bool {
+        let [CoordBlock::Point2(s), CoordBlock::Point2(e)] = x_o.blocks() else {
+            return false;
+        };
+        let length = (e - s).norm();
+        if length < Wall::MIN_LENGTH {
+            return false;
+        }
+        let (lo, hi) = extent_along(s, e, &self.endpoints);
+        let start_ok = if endpoint_estimated(wall, 0) {
+            lo >= -BEYOND_ESTIMATED_END
+        } else {
+            hi >= -MAX_GAP
+        };
+        let end_ok = if endpoint_estimated(wall, 1) {
+            hi <= length + BEYOND_ESTIMATED_END
+        } else {
+            lo <= length + MAX_GAP
+        };
+        start_ok && end_ok
+    }
+
+    /// Grows the wall along its line to cover the measured segment, at each end whose
+    /// position is not estimated (neither in the M-space nor a shared corner).
+    ///
+    /// The start moves by `a` and the end by `b` along the unit tangent `t`:
+    /// `s' = s + a t`, `e' = e + b t`, so with `P = I - t t^T` and `L` the length,
+    /// `d s' = d s + a P (d e - d s) / L` and `d e' = d e + b P (d e - d s) / L`: the new ends
+    /// turn with the wall.
+    fn extend(&self, wall: &Wall, world_from_sensor: &Pose3) -> Result<Option<Extension>> {
+        let (start, end) = (wall.start(), wall.end());
+        let length = wall.length();
+        let measured = self
+            .endpoints
+            .map(|q| scan_plane_to_world(world_from_sensor, &q));
+        let (lo, hi) = extent_along(&start, &end, &measured);
+        let a = if lo < 0.0 && !endpoint_estimated(wall, 0) {
+            lo
+        } else {
+            0.0
+        };
+        let b = if hi > length && !endpoint_estimated(wall, 1) {
+            hi - length
+        } else {
+            0.0
+        };
+        if a == 0.0 && b == 0.0 {
+            return Ok(None);
+        }
+        let t = wall.tangent();
+        let p = (Matrix2::identity() - t * t.transpose()) / length;
+        let mut d_new_d_old = DMatrix::identity(4, 4);
+        for (row, scale) in [(0, a), (2, b)] {
+            let turn = p * scale;
+            let mut block = d_new_d_old.view_mut((row, 0), (2, 2));
+            block -= turn;
+            let mut block = d_new_d_old.view_mut((row, 2), (2, 2));
+            block += turn;
+        }
+        let coordinates = Coordinates::new(vec![
+            CoordBlock::Point2(start + t * a),
+            CoordBlock::Point2(end + t * b),
+        ])?;
+        Ok(Some(Extension {
+            coordinates,
+            d_new_d_old,
+        }))
     }
 
     fn revealed_subspaces(&self, wall: &Wall, x_o: &Coordinates) -> Vec<&'static str> {

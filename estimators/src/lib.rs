@@ -1,7 +1,16 @@
 //! # slam-estimators
 //!
-//! SLAM estimators (M-space EKF, FastSLAM, IPSLAM, EM polygonal approximation), written
-//! against the `slam-core` traits only: this crate depends on no feature type and no sensor.
-//! It is empty until the EKF issue lands.
+//! SLAM estimators written against the `slam-core` traits only: this crate depends on no
+//! feature type and no sensor (DESIGN.md, invariant 1).
+//!
+//! - [`Ekf`]: the M-space EKF of the paper's section V, with feature lifecycle, data
+//!   association (nearest neighbour or JCBB), triangulation and shared corners.
+//!
+//! Errors are [`slam_core::Error`], the error of the [`slam_core::Estimator`] trait.
 
 #![warn(missing_docs)]
+
+mod covariance;
+pub mod ekf;
+
+pub use ekf::{Association, Ekf, EkfParams, pose_error};

@@ -1,0 +1,672 @@
+//! The M-space EKF (paper section V): the filter holds the robot pose and the M-space
+//! perturbations of every feature with their covariance; features keep their own
+//! coordinates and are moved by `x_f += B~ dx_p` after each update (eq. 24).
+//!
+//! Written against the slam-core traits only: it never knows a concrete feature type.
+//!
+//! One update step ([`Ekf::update`]):
+//! 1. **Association**: each observation is linearized against candidate features
+//!    ([`FeatureMap::linearize`], eq. 30). Known landmark ids pair directly; otherwise
+//!    Mahalanobis-gated nearest neighbour, or joint compatibility (JCBB) when configured.
+//! 2. **Lifecycle**: an unmatched observation far from every feature starts a tentative
+//!    feature (M-space dimension 0). A subspace that re-observations reveal
+//!    `confirm_after` times is activated ([`slam_core::Feature::activate`]); features that one
+//!    measurement cannot place (bearing-only lamps, ceiling-line position) grow when their
+//!    stored views triangulate them. New rows enter with a prior and are then updated by the
+//!    observation that revealed them.
+//! 3. **Update**: all pairings of the step in one batch (eqs. 28-32), then `x_f += B~ dx_p`
+//!    for every feature and shared block, and the extent of features along directions outside
+//!    their M-space grows to cover what was measured ([`slam_core::MeasurementModel::extend`]).
+//! 4. **Corners**: two features whose shareable blocks (wall ends) are fully estimated and
+//!    statistically the same point are constrained together and then share the block
+//!    (section VI, eq. 33): the covariance is re-parameterized onto the shared rows.
+
+mod association;
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+
+use serde::{Deserialize, Serialize};
+use slam_core::nalgebra::{DMatrix, DVector};
+use slam_core::{
+    CoordBlock, Coordinates, DynMeasurementModel, Error, Estimator, FeatureId, FeatureMap,
+    MotionModel, Observation, Pose3, Result, RobotPose, RowOwner, UpdateReport, chi2_quantile,
+    wrap_angle,
+};
+
+use crate::covariance::StateCovariance;
+use association::{Candidate, Choice};
+
+/// How observations without landmark ids are matched to features.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Association {
+    /// Each observation to the feature with the smallest Mahalanobis distance inside the gate.
+    #[default]
+    NearestNeighbour,
+    /// Joint compatibility branch and bound (Neira & Tardos 2001): the largest set of
+    /// pairings whose joint innovation passes the gate.
+    Jcbb,
+}
+
+/// Settings of the [`Ekf`]; `Default` gives the values used on the built-in world.
+///
+/// ```
+/// use slam_estimators::{EkfParams, Association};
+/// let params = EkfParams { association: Association::Jcbb, ..Default::default() };
+/// assert_eq!(params.confirm_after, 3);
+/// ```
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EkfParams {
+    /// Association rule for observations without landmark ids.
+    pub association: Association,
+    /// Probability of the chi-square gate an innovation must pass to pair.
+    pub gate_probability: f64,
+    /// An unmatched observation starts a new feature only if it lies outside this gate of
+    /// every feature; between the two gates it is dropped as ambiguous.
+    pub new_feature_probability: f64,
+    /// Sightings of a subspace (including the first) before it is activated.
+    pub confirm_after: usize,
+    /// Update steps a tentative feature survives without a sighting.
+    pub tentative_lifetime: usize,
+    /// Prior variance of new M-space rows in directions the observation that reveals them
+    /// does not determine (uninformative: large against the rows' scale of metres).
+    pub new_row_variance: f64,
+    /// Whether features join at shared blocks (wall corners, section VI).
+    pub join_corners: bool,
+    /// Largest distance between two blocks that may become one shared block, m.
+    pub corner_distance: f64,
+    /// Views kept per growing feature for triangulation.
+    pub max_views: usize,
+    /// Candidate features for an observation are those whose bounding box lies within this
+    /// distance of the feature the observation would start, m.
+    pub association_margin: f64,
+    /// Node limit of the JCBB search (the best hypothesis so far is used when reached).
+    pub jcbb_max_nodes: usize,
+    /// Observability-constrained updates (Huang, Mourikis & Roumeliotis, "Observability-based
+    /// rules for designing consistent EKF SLAM estimators", IJRR 2010): each measurement
+    /// Jacobian is projected so that it cannot observe a world translation or rotation as
+    /// the filter's linearizations have carried those directions. Without it the EKF gains
+    /// spurious information about the absolute heading and becomes overconfident.
+    pub observability_constraint: bool,
+}
+
+impl Default for EkfParams {
+    fn default() -> Self {
+        EkfParams {
+            association: Association::NearestNeighbour,
+            gate_probability: 0.99,
+            new_feature_probability: 0.9999,
+            confirm_after: 3,
+            tentative_lifetime: 15,
+            new_row_variance: 1e4,
+            join_corners: true,
+            corner_distance: 0.3,
+            max_views: 8,
+            association_margin: 3.0,
+            jcbb_max_nodes: 20_000,
+            observability_constraint: true,
+        }
+    }
+}
+
+impl EkfParams {
+    /// Checks every value's range.
+    pub fn validate(&self) -> Result<()> {
+        let probability = |p: f64| p > 0.0 && p < 1.0;
+        let checks = [
+            (
+                probability(self.gate_probability),
+                "gate_probability in (0, 1)",
+            ),
+            (
+                probability(self.new_feature_probability)
+                    && self.new_feature_probability >= self.gate_probability,
+                "new_feature_probability in [gate_probability, 1)",
+            ),
+            (self.confirm_after >= 1, "confirm_after >= 1"),
+            (self.tentative_lifetime >= 1, "tentative_lifetime >= 1"),
+            (
+                self.new_row_variance.is_finite() && self.new_row_variance > 0.0,
+                "new_row_variance > 0",
+            ),
+            (
+                self.corner_distance.is_finite() && self.corner_distance >= 0.0,
+                "corner_distance >= 0",
+            ),
+            (self.max_views >= 2, "max_views >= 2"),
+            (
+                self.association_margin.is_finite() && self.association_margin >= 0.0,
+                "association_margin >= 0",
+            ),
+            (self.jcbb_max_nodes >= 1, "jcbb_max_nodes >= 1"),
+        ];
+        match checks.iter().find(|(ok, _)| !ok) {
+            Some((_, what)) => Err(Error::InvalidArgument(format!("EKF parameters: {what}"))),
+            None => Ok(()),
+        }
+    }
+}
+
+/// One earlier measurement of a feature, kept for triangulation.
+#[derive(Debug)]
+struct View<P> {
+    world_from_sensor: Pose3,
+    world_from_robot: P,
+    robot_from_sensor: Pose3,
+    measurement: Box<dyn DynMeasurementModel>,
+}
+
+/// What the filter remembers about a feature besides its rows.
+#[derive(Debug)]
+struct Track<P> {
+    /// Sightings so far, including the first.
+    sightings: usize,
+    /// The update step of the last sighting.
+    last_seen: usize,
+    /// How often each not-yet-active subspace was revealed.
+    revealed: BTreeMap<&'static str, usize>,
+    /// Views for triangulation (while the feature can still grow).
+    views: Vec<View<P>>,
+    /// The data's landmark id, when known.
+    landmark_id: Option<u64>,
+    /// Axis-aligned bounding box of the feature's horizontal coordinates.
+    bbox: BoundingBox,
+}
+
+impl<P> Default for Track<P> {
+    fn default() -> Self {
+        Track {
+            sightings: 0,
+            last_seen: 0,
+            revealed: BTreeMap::new(),
+            views: Vec::new(),
+            landmark_id: None,
+            bbox: BoundingBox::default(),
+        }
+    }
+}
+
+/// A horizontal axis-aligned bounding box.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct BoundingBox {
+    lo: [f64; 2],
+    hi: [f64; 2],
+}
+
+impl Default for BoundingBox {
+    fn default() -> Self {
+        BoundingBox {
+            lo: [f64::INFINITY; 2],
+            hi: [f64::NEG_INFINITY; 2],
+        }
+    }
+}
+
+impl BoundingBox {
+    /// The box of the x, y values of every point block (scalars ignored).
+    fn of(coordinates: &Coordinates) -> Self {
+        let mut bbox = BoundingBox::default();
+        for block in coordinates.blocks() {
+            let (x, y) = match block {
+                CoordBlock::Point3(p) => (p.x, p.y),
+                CoordBlock::Point2(p) => (p.x, p.y),
+                CoordBlock::Scalar(_) => continue,
+            };
+            bbox.lo = [bbox.lo[0].min(x), bbox.lo[1].min(y)];
+            bbox.hi = [bbox.hi[0].max(x), bbox.hi[1].max(y)];
+        }
+        bbox
+    }
+
+    /// Whether the boxes come within `margin` of each other.
+    fn near(&self, other: &BoundingBox, margin: f64) -> bool {
+        (0..2).all(|k| self.lo[k] - margin <= other.hi[k] && other.lo[k] - margin <= self.hi[k])
+    }
+}
+
+/// One observation linearized against one feature: a block row of `J_eta,state` (eq. 30)
+/// restricted to the state rows it touches.
+#[derive(Clone, Debug)]
+struct Pairing {
+    /// The feature.
+    feature: FeatureId,
+    /// State rows touched: the pose rows, then the feature's own and shared rows.
+    indices: Vec<usize>,
+    /// `J_eta,state` on those rows (`m x indices.len()`).
+    h: DMatrix<f64>,
+    /// The innovation `eta`.
+    eta: DVector<f64>,
+    /// `C_eta`.
+    cov_eta: DMatrix<f64>,
+}
+
+/// The M-space EKF over robot poses of type `P`.
+///
+/// ```
+/// use slam_core::{Estimator, Pose2, nalgebra::DMatrix};
+/// use slam_estimators::{Ekf, EkfParams};
+/// let ekf = Ekf::new(Pose2::identity(), DMatrix::zeros(3, 3), EkfParams::default()).unwrap();
+/// assert_eq!(ekf.name(), "ekf");
+/// assert_eq!(ekf.state_dim(), 3);
+/// ```
+#[derive(Debug)]
+pub struct Ekf<P: RobotPose> {
+    params: EkfParams,
+    pose: P,
+    cov: StateCovariance,
+    map: FeatureMap,
+    /// State row indices of every row owner, in the owner's own row order.
+    rows: BTreeMap<RowOwner, Vec<usize>>,
+    tracks: BTreeMap<FeatureId, Track<P>>,
+    ids: HashMap<u64, FeatureId>,
+    gates: HashMap<(usize, u64), f64>,
+    step: usize,
+    corners_joined: usize,
+}
+
+/// What the filter decided for one observation.
+#[derive(Debug)]
+enum Decision {
+    /// Paired with a feature (the linearization at the pre-update state).
+    Pair(Pairing),
+    /// Starts a new feature.
+    New,
+    /// Dropped (ambiguous, or it could not be linearized or placed).
+    Reject,
+}
+
+impl<P: RobotPose> Ekf<P> {
+    /// A filter at `pose` with pose covariance `pose_covariance` (`P::DIM` square) and no
+    /// features.
+    pub fn new(pose: P, pose_covariance: DMatrix<f64>, params: EkfParams) -> Result<Self> {
+        params.validate()?;
+        if pose_covariance.shape() != (P::DIM, P::DIM) {
+            return Err(Error::DimensionMismatch {
+                what: "initial pose covariance".into(),
+                expected: P::DIM,
+                got: pose_covariance.nrows(),
+            });
+        }
+        slam_core::ensure_finite(pose_covariance.as_slice(), "initial pose covariance")?;
+        let mut cov = StateCovariance::zeros(0);
+        let g = pose.planar_motion_generators();
+        let generators = DMatrix::from_fn(P::DIM, 3, |i, j| g[j].get(i).copied().unwrap_or(0.0));
+        cov.append(&pose_covariance, None, &generators);
+        Ok(Ekf {
+            params,
+            pose,
+            cov,
+            map: FeatureMap::new(),
+            rows: BTreeMap::new(),
+            tracks: BTreeMap::new(),
+            ids: HashMap::new(),
+            gates: HashMap::new(),
+            step: 0,
+            corners_joined: 0,
+        })
+    }
+
+    /// The settings.
+    pub fn params(&self) -> &EkfParams {
+        &self.params
+    }
+
+    /// Number of state rows: the pose plus every M-space row.
+    pub fn state_dim(&self) -> usize {
+        self.cov.dim()
+    }
+
+    /// Corners joined so far.
+    pub fn corners_joined(&self) -> usize {
+        self.corners_joined
+    }
+
+    /// Whether feature `id` has rows in the state (it is no longer tentative).
+    pub fn is_confirmed(&self, id: FeatureId) -> bool {
+        self.map
+            .row_owners(id)
+            .is_ok_and(|owners| !owners.is_empty())
+    }
+
+    /// The whole state covariance (pose rows first); for tests and small maps.
+    pub fn covariance(&self) -> DMatrix<f64> {
+        self.cov.to_dense()
+    }
+
+    /// The state rows of a row owner.
+    pub fn rows_of(&self, owner: RowOwner) -> Option<&[usize]> {
+        self.rows.get(&owner).map(Vec::as_slice)
+    }
+
+    /// The chi-square gate for `dof` degrees of freedom at `probability` (memoized).
+    fn gate(&mut self, probability: f64, dof: usize) -> Result<f64> {
+        let key = (dof, probability.to_bits());
+        if let Some(&g) = self.gates.get(&key) {
+            return Ok(g);
+        }
+        let g = chi2_quantile(probability, dof)?;
+        self.gates.insert(key, g);
+        Ok(g)
+    }
+
+    fn pose_indices() -> Vec<usize> {
+        (0..P::DIM).collect()
+    }
+
+    /// Linearizes `observation` against feature `id` at the current state (eq. 30).
+    fn linearize(&self, observation: &Observation, id: FeatureId) -> Result<Pairing> {
+        let lin = self.map.linearize(
+            id,
+            observation.measurement.as_ref(),
+            &self.pose,
+            &observation.robot_from_sensor,
+        )?;
+        let mut indices = Self::pose_indices();
+        let mut blocks = vec![lin.measurement.d_eta_d_robot.clone()];
+        for (owner, d) in &lin.columns {
+            let rows = self.rows.get(owner).ok_or_else(|| {
+                Error::InvalidArgument(format!("row owner {owner:?} has no state rows"))
+            })?;
+            if rows.len() != d.ncols() {
+                return Err(Error::DimensionMismatch {
+                    what: format!("state rows of {owner:?}"),
+                    expected: rows.len(),
+                    got: d.ncols(),
+                });
+            }
+            indices.extend_from_slice(rows);
+            blocks.push(d.clone());
+        }
+        let m = lin.measurement.eta.len();
+        let mut h = DMatrix::zeros(m, indices.len());
+        let mut column = 0;
+        for block in blocks {
+            h.view_mut((0, column), block.shape()).copy_from(&block);
+            column += block.ncols();
+        }
+        Ok(Pairing {
+            feature: id,
+            indices,
+            h,
+            eta: lin.measurement.eta,
+            cov_eta: lin.measurement.cov_eta,
+        })
+    }
+
+    /// `S = H C H^T + C_eta` of a pairing; for a tentative feature (no rows) the feature's own
+    /// uncertainty is approximated by one more `C_eta` (it was placed by one measurement).
+    fn innovation_covariance(&self, pairing: &Pairing, tentative: bool) -> DMatrix<f64> {
+        let c = self.cov.gather(&pairing.indices, &pairing.indices);
+        let s = &pairing.h * c * pairing.h.transpose() + &pairing.cov_eta;
+        if tentative { s + &pairing.cov_eta } else { s }
+    }
+
+    /// The candidate features of an observation with their Mahalanobis distances.
+    fn candidates(&self, observation: &Observation) -> Vec<Candidate> {
+        let measurement = observation.measurement.as_ref();
+        let world_from_sensor = self.pose.world_from_sensor(&observation.robot_from_sensor);
+        let near = measurement
+            .initial_feature_dyn(&world_from_sensor)
+            .ok()
+            .flatten()
+            .map(|f| BoundingBox::of(f.coordinates()));
+        let mut out = Vec::new();
+        for (id, feature) in self.map.iter() {
+            if !measurement.accepts(feature) {
+                continue;
+            }
+            let track = self.tracks.get(&id);
+            if let (Some(near), Some(track)) = (&near, track)
+                && !track.bbox.near(near, self.params.association_margin)
+            {
+                continue;
+            }
+            let Ok(x_o) = slam_core::MapToSensor::new(&world_from_sensor)
+                .and_then(|t| t.transform(feature.coordinates()))
+            else {
+                continue;
+            };
+            if !measurement.plausible_dyn(feature, &x_o) {
+                continue;
+            }
+            let Ok(pairing) = self.linearize(observation, id) else {
+                continue;
+            };
+            let tentative = !self.is_confirmed(id);
+            let s = self.innovation_covariance(&pairing, tentative);
+            let Some(s_inv) = s.clone().try_inverse() else {
+                continue;
+            };
+            let distance = (pairing.eta.transpose() * &s_inv * &pairing.eta)[(0, 0)];
+            if distance.is_finite() {
+                out.push(Candidate {
+                    pairing,
+                    distance,
+                    tentative,
+                });
+            }
+        }
+        out.sort_by(|a, b| a.distance.total_cmp(&b.distance));
+        out
+    }
+
+    /// Decides, for every observation, whether it pairs, starts a feature or is dropped.
+    fn associate(&mut self, observations: &[Observation]) -> Result<Vec<Decision>> {
+        let mut decisions: Vec<Option<Decision>> = (0..observations.len()).map(|_| None).collect();
+        let mut open = Vec::new();
+        for (index, observation) in observations.iter().enumerate() {
+            match observation.landmark_id {
+                Some(id) => {
+                    decisions[index] = Some(match self.ids.get(&id) {
+                        Some(&feature) => match self.linearize(observation, feature) {
+                            Ok(pairing) => Decision::Pair(pairing),
+                            Err(_) => Decision::Reject,
+                        },
+                        None => Decision::New,
+                    });
+                }
+                None => open.push(index),
+            }
+        }
+        let mut candidates: BTreeMap<usize, Vec<Candidate>> = BTreeMap::new();
+        for &index in &open {
+            candidates.insert(index, self.candidates(&observations[index]));
+        }
+        let mut gates = BTreeMap::new();
+        for list in candidates.values() {
+            for c in list {
+                let dof = c.pairing.eta.len();
+                gates.insert(dof, self.gate(self.params.gate_probability, dof)?);
+            }
+        }
+        let chosen = match self.params.association {
+            Association::NearestNeighbour => association::nearest_neighbour(&candidates, &gates),
+            Association::Jcbb => association::jcbb(
+                &candidates,
+                &gates,
+                |pairings: &[&Pairing]| self.joint_distance(pairings),
+                self.params.gate_probability,
+                self.params.jcbb_max_nodes,
+            )?,
+        };
+        for &index in &open {
+            let list = candidates.remove(&index).unwrap_or_default();
+            let decision = match chosen.get(&index) {
+                Some(Choice::Pair(k)) => list
+                    .into_iter()
+                    .nth(*k)
+                    .map_or(Decision::Reject, |c| Decision::Pair(c.pairing)),
+                _ => {
+                    let mut far_from_all = true;
+                    for c in &list {
+                        let gate =
+                            self.gate(self.params.new_feature_probability, c.pairing.eta.len())?;
+                        if c.distance <= gate {
+                            far_from_all = false;
+                        }
+                    }
+                    if far_from_all {
+                        Decision::New
+                    } else {
+                        Decision::Reject
+                    }
+                }
+            };
+            decisions[index] = Some(decision);
+        }
+        Ok(decisions
+            .into_iter()
+            .map(|d| d.unwrap_or(Decision::Reject))
+            .collect())
+    }
+
+    /// Joint Mahalanobis distance and dimension of a set of pairings (for JCBB).
+    fn joint_distance(&self, pairings: &[&Pairing]) -> Option<(f64, usize)> {
+        let (indices, h, r, eta) = stack(pairings);
+        let c = self.cov.gather(&indices, &indices);
+        let s = &h * c * h.transpose() + r;
+        let s_inv = s.try_inverse()?;
+        Some(((eta.transpose() * s_inv * &eta)[(0, 0)], eta.len()))
+    }
+}
+
+/// The change of coordinates under a world translation along x, along y and a rotation
+/// about z (`dim(x_f) x 3`).
+pub(crate) fn coordinate_generators(coordinates: &Coordinates) -> DMatrix<f64> {
+    let mut g = DMatrix::zeros(coordinates.dim(), 3);
+    for (k, block) in coordinates.blocks().iter().enumerate() {
+        let offset = coordinates.offset(k);
+        let (x, y) = match block {
+            CoordBlock::Point2(p) => (p.x, p.y),
+            CoordBlock::Point3(p) => (p.x, p.y),
+            CoordBlock::Scalar(_) => continue,
+        };
+        g[(offset, 0)] = 1.0;
+        g[(offset + 1, 1)] = 1.0;
+        g[(offset, 2)] = -y;
+        g[(offset + 1, 2)] = x;
+    }
+    g
+}
+
+/// `H - H N (N^T N)^-1 N^T`: the Jacobian that observes nothing along the columns of `n`
+/// (left as it is when `N^T N` is singular).
+pub(crate) fn project_out(h: &DMatrix<f64>, n: &DMatrix<f64>) -> DMatrix<f64> {
+    let gram = n.transpose() * n;
+    match gram.try_inverse() {
+        Some(inverse) => h - h * n * inverse * n.transpose(),
+        None => h.clone(),
+    }
+}
+
+/// Stacks pairings into one measurement: the union of their state rows (sorted), `H` on
+/// those rows, block-diagonal `C_eta` and the stacked innovation.
+fn stack(pairings: &[&Pairing]) -> (Vec<usize>, DMatrix<f64>, DMatrix<f64>, DVector<f64>) {
+    let indices: Vec<usize> = pairings
+        .iter()
+        .flat_map(|p| p.indices.iter().copied())
+        .collect::<BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    let position: HashMap<usize, usize> =
+        indices.iter().enumerate().map(|(k, &i)| (i, k)).collect();
+    let m: usize = pairings.iter().map(|p| p.eta.len()).sum();
+    let mut h = DMatrix::zeros(m, indices.len());
+    let mut r = DMatrix::zeros(m, m);
+    let mut eta = DVector::zeros(m);
+    let mut row = 0;
+    for p in pairings {
+        let k = p.eta.len();
+        for (column, index) in p.indices.iter().enumerate() {
+            let target = position[index];
+            for a in 0..k {
+                h[(row + a, target)] += p.h[(a, column)];
+            }
+        }
+        r.view_mut((row, row), (k, k)).copy_from(&p.cov_eta);
+        eta.rows_mut(row, k).copy_from(&p.eta);
+        row += k;
+    }
+    (indices, h, r, eta)
+}
+
+mod update;
+
+impl<P: RobotPose> Estimator<P> for Ekf<P> {
+    fn name(&self) -> &'static str {
+        "ekf"
+    }
+
+    /// Eqs. 25-27: the pose moves by the dead-reckoning increment; `C_rr` and `C_rp` follow.
+    fn predict(&mut self, motion: &dyn MotionModel<P>) -> Result<()> {
+        let prediction = motion.predict(&self.pose)?;
+        let added = &prediction.d_pose_d_control
+            * &prediction.cov_control
+            * prediction.d_pose_d_control.transpose();
+        slam_core::ensure_finite(added.as_slice(), "motion noise")?;
+        slam_core::ensure_finite(prediction.d_pose_d_pose.as_slice(), "J_rr")?;
+        self.cov.predict(&prediction.d_pose_d_pose, &added);
+        self.pose = prediction.pose;
+        Ok(())
+    }
+
+    fn update(&mut self, observations: &[Observation]) -> Result<UpdateReport> {
+        self.step += 1;
+        let decisions = self.associate(observations)?;
+        self.apply_decisions(observations, decisions)
+    }
+
+    fn pose(&self) -> P {
+        self.pose
+    }
+
+    fn pose_covariance(&self) -> DMatrix<f64> {
+        let pose = Self::pose_indices();
+        self.cov.gather(&pose, &pose)
+    }
+
+    fn map(&self) -> &FeatureMap {
+        &self.map
+    }
+
+    fn row_covariance(&self, owner: RowOwner) -> Option<DMatrix<f64>> {
+        self.rows
+            .get(&owner)
+            .map(|rows| self.cov.gather(rows, rows))
+    }
+
+    fn landmark_id(&self, id: FeatureId) -> Option<u64> {
+        self.tracks.get(&id).and_then(|t| t.landmark_id)
+    }
+}
+
+/// `pose + delta` in parameter space, angles wrapped by the pose type.
+fn add_to_pose<P: RobotPose>(pose: &P, delta: &[f64]) -> Result<P> {
+    let mut parameters = pose.parameters();
+    for (p, d) in parameters.iter_mut().zip(delta) {
+        *p += d;
+    }
+    P::from_parameters(&parameters)
+}
+
+/// `true - estimate` in pose parameters with angle differences wrapped (the NEES error).
+///
+/// For [`slam_core::Pose2`] the third parameter is the heading; for
+/// [`slam_core::Pose3`] the last three are Euler angles.
+pub fn pose_error<P: RobotPose>(truth: &P, estimate: &P) -> Vec<f64> {
+    let t = truth.parameters();
+    let e = estimate.parameters();
+    let angles_from = if P::DIM == 3 { 2 } else { 3 };
+    t.iter()
+        .zip(&e)
+        .enumerate()
+        .map(|(k, (a, b))| {
+            if k >= angles_from {
+                wrap_angle(a - b)
+            } else {
+                a - b
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,621 @@
+//! The update step after association: feature lifecycle (sightings, growth, triangulation),
+//! the batch EKF update (eqs. 28-32 and 24), extents, corners and pruning.
+
+use std::collections::BTreeSet;
+
+use slam_core::nalgebra::{DMatrix, DVector};
+use slam_core::{
+    Error, Feature, FeatureId, MapToSensor, Observation, Result, RobotPose, RowOwner, UpdateReport,
+    linearize,
+};
+
+use super::{
+    BoundingBox, Decision, Ekf, Pairing, Track, View, add_to_pose, coordinate_generators,
+    project_out, stack,
+};
+
+/// Largest `|B (x_new - x_old)|` accepted for a change outside the M-space.
+const OUTSIDE_MSPACE_TOLERANCE: f64 = 1e-6;
+
+/// Variance of the constraint that makes two blocks one corner (a near-perfect measurement).
+const JOIN_CONSTRAINT_VARIANCE: f64 = 1e-12;
+
+impl<P: RobotPose> Ekf<P> {
+    /// Carries out the decisions of one step (see the module documentation).
+    pub(super) fn apply_decisions(
+        &mut self,
+        observations: &[Observation],
+        decisions: Vec<Decision>,
+    ) -> Result<UpdateReport> {
+        let mut report = UpdateReport::default();
+        let mut batch: Vec<Pairing> = Vec::new();
+        let mut seen: Vec<(usize, FeatureId)> = Vec::new();
+        let mut grown = BTreeSet::new();
+        let mut new_observations = Vec::new();
+        for (index, decision) in decisions.into_iter().enumerate() {
+            match decision {
+                Decision::Pair(pairing) => {
+                    let id = pairing.feature;
+                    let observation = &observations[index];
+                    report.associated += 1;
+                    if self.is_confirmed(id) {
+                        let s = self.innovation_covariance(&pairing, false);
+                        if let Some(s_inv) = s.try_inverse() {
+                            let nis = (pairing.eta.transpose() * s_inv * &pairing.eta)[(0, 0)];
+                            report.nis.push((nis, pairing.eta.len()));
+                        }
+                        batch.push(pairing);
+                    }
+                    self.note_sighting(id, observation)?;
+                    if self.grow(id, observation)? {
+                        grown.insert(id);
+                    }
+                    seen.push((index, id));
+                }
+                Decision::New => new_observations.push(index),
+                Decision::Reject => report.rejected += 1,
+            }
+        }
+        for index in new_observations {
+            let observation = &observations[index];
+            match self.start_feature(observation)? {
+                Some(id) => {
+                    report.new_features += 1;
+                    if self.grow(id, observation)? {
+                        grown.insert(id);
+                    }
+                    seen.push((index, id));
+                }
+                None => report.rejected += 1,
+            }
+        }
+        // Pairings of features that grew this step are linearized again, on their new rows.
+        batch.retain(|p| !grown.contains(&p.feature));
+        for &(index, id) in &seen {
+            if grown.contains(&id)
+                && self.is_confirmed(id)
+                && let Ok(pairing) = self.linearize(&observations[index], id)
+            {
+                batch.push(pairing);
+            }
+        }
+        if self.params.observability_constraint {
+            for pairing in &mut batch {
+                pairing.h = project_out(&pairing.h, &self.cov.generators(&pairing.indices));
+            }
+        }
+        if !batch.is_empty() {
+            let pairings: Vec<&Pairing> = batch.iter().collect();
+            let (indices, h, r, eta) = stack(&pairings);
+            let dx = self.cov.update(&indices, &h, &r, &eta)?;
+            self.apply_state_change(&dx)?;
+        }
+        for &(index, id) in &seen {
+            self.extend(id, &observations[index])?;
+        }
+        if self.params.join_corners {
+            let touched: BTreeSet<FeatureId> = seen.iter().map(|&(_, id)| id).collect();
+            for id in touched {
+                self.join_corners_of(id)?;
+            }
+        }
+        self.prune_tentative()?;
+        Ok(report)
+    }
+
+    /// `x += dx`: the pose by its parameters, every feature by `x_f += B~ dx_p` (eq. 24) and
+    /// every shared block by its identity rows.
+    fn apply_state_change(&mut self, dx: &DVector<f64>) -> Result<()> {
+        let d = P::DIM;
+        self.pose = add_to_pose(&self.pose, &dx.as_slice()[..d])?;
+        let perturbations: Vec<(RowOwner, DVector<f64>)> = self
+            .rows
+            .iter()
+            .map(|(owner, rows)| (*owner, DVector::from_fn(rows.len(), |k, _| dx[rows[k]])))
+            .collect();
+        self.map.apply(&perturbations)?;
+        let ids: Vec<FeatureId> = self.tracks.keys().copied().collect();
+        for id in ids {
+            self.refresh_bbox(id);
+        }
+        Ok(())
+    }
+
+    fn refresh_bbox(&mut self, id: FeatureId) {
+        if let (Ok(feature), Some(track)) = (self.map.get(id), self.tracks.get_mut(&id)) {
+            track.bbox = BoundingBox::of(feature.coordinates());
+        }
+    }
+
+    /// The feature `observation` would start, placed from the current pose.
+    fn start_feature(&mut self, observation: &Observation) -> Result<Option<FeatureId>> {
+        let world_from_sensor = self.pose.world_from_sensor(&observation.robot_from_sensor);
+        let Ok(Some(feature)) = observation
+            .measurement
+            .initial_feature_dyn(&world_from_sensor)
+        else {
+            return Ok(None);
+        };
+        let bbox = BoundingBox::of(feature.coordinates());
+        let id = self.map.insert(feature)?;
+        self.tracks.insert(
+            id,
+            Track {
+                landmark_id: observation.landmark_id,
+                bbox,
+                ..Track::default()
+            },
+        );
+        if let Some(landmark) = observation.landmark_id {
+            self.ids.insert(landmark, id);
+        }
+        self.note_sighting(id, observation)?;
+        Ok(Some(id))
+    }
+
+    /// Counts a sighting: the subspaces it reveals, and a view kept while the feature can
+    /// still grow.
+    fn note_sighting(&mut self, id: FeatureId, observation: &Observation) -> Result<()> {
+        let world_from_sensor = self.pose.world_from_sensor(&observation.robot_from_sensor);
+        let feature = self.map.get(id)?;
+        let x_o = MapToSensor::new(&world_from_sensor)?.transform(feature.coordinates())?;
+        let revealed = observation
+            .measurement
+            .revealed_subspaces_dyn(feature, &x_o)
+            .unwrap_or_default();
+        let can_grow = !feature.growth_options().is_empty();
+        let step = self.step;
+        let max_views = self.params.max_views;
+        let track = self.tracks.entry(id).or_default();
+        track.sightings += 1;
+        track.last_seen = step;
+        for name in revealed {
+            *track.revealed.entry(name).or_default() += 1;
+        }
+        if can_grow {
+            if track.views.len() >= max_views {
+                // Keep the first view (the widest baseline so far) and the most recent ones.
+                track.views.remove(1);
+            }
+            track.views.push(View {
+                world_from_sensor,
+                world_from_robot: self.pose,
+                robot_from_sensor: observation.robot_from_sensor,
+                measurement: observation.measurement.clone_box(),
+            });
+        } else {
+            track.views.clear();
+        }
+        Ok(())
+    }
+
+    /// Grows feature `id` by every subspace revealed often enough, or by triangulation from
+    /// its views; new rows get their prior covariance. Returns whether it grew.
+    fn grow(&mut self, id: FeatureId, observation: &Observation) -> Result<bool> {
+        let threshold = match self.tracks.get(&id) {
+            Some(track) if track.landmark_id.is_some() => 1,
+            _ => self.params.confirm_after,
+        };
+        let old_dim = self.map.get(id)?.mspace_dim();
+        let mut priors = Vec::new();
+        loop {
+            let options = self.map.get(id)?.growth_options();
+            let track = self.tracks.entry(id).or_default();
+            let ready = options
+                .iter()
+                .find(|s| track.revealed.get(s.name).copied().unwrap_or(0) >= threshold);
+            let Some(subspace) = ready else { break };
+            track.revealed.remove(subspace.name);
+            let growth = self.map.activate(id, subspace.name)?;
+            let n = growth.rows.len();
+            let prior = self
+                .map
+                .get(id)?
+                .growth_prior(&growth)
+                .filter(|p| p.shape() == (n, n) && p.iter().all(|v| v.is_finite()))
+                .unwrap_or_else(|| DMatrix::identity(n, n) * self.params.new_row_variance);
+            priors.push(prior);
+        }
+        let mut new_dim = self.map.get(id)?.mspace_dim();
+        if new_dim == old_dim
+            && let Some(information) = self.triangulate(id, observation)?
+        {
+            new_dim = self.map.get(id)?.mspace_dim();
+            let added = new_dim - old_dim;
+            let regularized =
+                information + DMatrix::identity(added, added) / self.params.new_row_variance;
+            priors.push(
+                regularized
+                    .try_inverse()
+                    .ok_or_else(|| Error::Singular("triangulation prior".into()))?,
+            );
+        }
+        if new_dim == old_dim {
+            return Ok(false);
+        }
+        let added = new_dim - old_dim;
+        let mut block = DMatrix::zeros(added, added);
+        let mut at = 0;
+        for prior in priors {
+            let n = prior.nrows();
+            if at + n > added {
+                return Err(Error::DimensionMismatch {
+                    what: "growth priors".into(),
+                    expected: added,
+                    got: at + n,
+                });
+            }
+            block.view_mut((at, at), (n, n)).copy_from(&prior);
+            at += n;
+        }
+        let feature = self.map.get(id)?;
+        let generators = feature.projection()?.rows(old_dim, added)
+            * coordinate_generators(feature.coordinates());
+        let range = self.cov.append(&block, None, &generators);
+        self.rows
+            .entry(RowOwner::Feature(id))
+            .or_default()
+            .extend(range);
+        if self.map.get(id)?.growth_options().is_empty()
+            && let Some(track) = self.tracks.get_mut(&id)
+        {
+            track.views.clear();
+        }
+        self.refresh_bbox(id);
+        Ok(true)
+    }
+
+    /// Places feature `id` from its views when they triangulate it and reveal subspaces it
+    /// does not have. The new coordinates keep the already-estimated directions:
+    /// `x_new = x_tri - B~_new P_old B_new (x_tri - x_old)`, `P_old` selecting the old rows.
+    /// Returns the information of the other views about the new rows (their prior).
+    fn triangulate(
+        &mut self,
+        id: FeatureId,
+        observation: &Observation,
+    ) -> Result<Option<DMatrix<f64>>> {
+        let Some(track) = self.tracks.get(&id) else {
+            return Ok(None);
+        };
+        let feature = self.map.get(id)?;
+        let options = feature.growth_options();
+        let blocks = feature.coordinates().num_blocks();
+        if options.is_empty() || track.views.len() < 2 || (0..blocks).any(|k| feature.is_shared(k))
+        {
+            return Ok(None);
+        }
+        // The current observation is the last view; triangulate it with the others.
+        let (current, others) = track
+            .views
+            .split_last()
+            .ok_or(Error::Singular("triangulation without views".into()))?;
+        let other_views: Vec<_> = others
+            .iter()
+            .map(|v| (v.world_from_sensor, v.measurement.as_ref()))
+            .collect();
+        let Ok(Some(triangulated)) = observation
+            .measurement
+            .triangulate_dyn(&current.world_from_sensor, &other_views)
+        else {
+            return Ok(None);
+        };
+        let reveals: Vec<&'static str> = triangulated
+            .reveals
+            .iter()
+            .copied()
+            .filter(|name| options.iter().any(|s| s.name == *name))
+            .collect();
+        if reveals.is_empty() {
+            return Ok(None);
+        }
+        let old_dim = feature.mspace_dim();
+        let mut grown = slam_core::dyn_clone::clone_box(feature);
+        for name in &reveals {
+            grown.activate(name)?;
+        }
+        let x_old = feature.coordinates().to_vector();
+        let x_tri = feature
+            .conform(triangulated.feature.coordinates().clone())
+            .to_vector();
+        let x_new = if old_dim == 0 {
+            x_tri
+        } else {
+            let b = grown.projection()?;
+            let b_dual = grown.dual()?;
+            let change = &x_tri - &x_old;
+            let kept = b_dual.columns(0, old_dim) * (b.rows(0, old_dim) * change);
+            x_tri - kept
+        };
+        let coordinates = feature.coordinates().with_vector(&x_new)?;
+        // Views that place the feature where it cannot go (a line turned around) are
+        // ignored: no growth this time.
+        if grown.set_coordinates(coordinates).is_err() {
+            return Ok(None);
+        }
+        let new_dim = grown.mspace_dim();
+        let information = self.views_information(grown.as_ref(), others, old_dim, new_dim);
+        self.map.replace(id, grown)?;
+        Ok(Some(information))
+    }
+
+    /// `sum_v J_v^T S_v^-1 J_v` over the views, `J_v` the Jacobian of view `v`'s innovation
+    /// with respect to the new rows `old_dim..new_dim` and `S_v` its noise plus the current
+    /// pose uncertainty (a stand-in for that view's own pose uncertainty).
+    fn views_information(
+        &self,
+        feature: &dyn Feature,
+        views: &[View<P>],
+        old_dim: usize,
+        new_dim: usize,
+    ) -> DMatrix<f64> {
+        let added = new_dim - old_dim;
+        let c_rr = slam_core::Estimator::pose_covariance(self);
+        let mut information = DMatrix::zeros(added, added);
+        for view in views {
+            let Ok(lin) = linearize(
+                view.measurement.as_ref(),
+                feature,
+                &view.world_from_robot,
+                &view.robot_from_sensor,
+            ) else {
+                continue;
+            };
+            let j_new = lin.d_eta_d_own.columns(old_dim, added).into_owned();
+            let s = &lin.cov_eta + &lin.d_eta_d_robot * &c_rr * lin.d_eta_d_robot.transpose();
+            if let Some(s_inv) = s.try_inverse() {
+                information += j_new.transpose() * s_inv * j_new;
+            }
+        }
+        0.5 * (&information + information.transpose())
+    }
+
+    /// Applies the measurement's change outside the M-space (a wall's extent).
+    fn extend(&mut self, id: FeatureId, observation: &Observation) -> Result<()> {
+        let world_from_sensor = self.pose.world_from_sensor(&observation.robot_from_sensor);
+        let feature = self.map.get(id)?;
+        let Ok(Some(extension)) = observation
+            .measurement
+            .extend_dyn(feature, &world_from_sensor)
+        else {
+            return Ok(());
+        };
+        // A change the check refuses (it would move the feature inside its M-space) is not
+        // applied: the estimate stays as the update left it.
+        let Ok(transform) =
+            self.map
+                .set_coordinates_outside_mspace(id, extension, OUTSIDE_MSPACE_TOLERANCE)
+        else {
+            return Ok(());
+        };
+        if let Some(transform) = transform {
+            let mut rows = Vec::new();
+            for (owner, size) in &transform.owners {
+                let owned = self.rows.get(owner).ok_or_else(|| {
+                    Error::InvalidArgument(format!("row owner {owner:?} has no state rows"))
+                })?;
+                if owned.len() != *size {
+                    return Err(Error::DimensionMismatch {
+                        what: format!("state rows of {owner:?}"),
+                        expected: owned.len(),
+                        got: *size,
+                    });
+                }
+                rows.extend_from_slice(owned);
+            }
+            self.cov.transform_rows(&rows, &transform.matrix)?;
+        }
+        self.refresh_bbox(id);
+        Ok(())
+    }
+
+    /// Drops tentative features not seen for `tentative_lifetime` steps.
+    fn prune_tentative(&mut self) -> Result<()> {
+        let stale: Vec<FeatureId> = self
+            .tracks
+            .iter()
+            .filter(|(id, track)| {
+                self.step.saturating_sub(track.last_seen) > self.params.tentative_lifetime
+                    && !self.is_confirmed(**id)
+            })
+            .map(|(id, _)| *id)
+            .collect();
+        for id in stale {
+            self.map.remove(id)?;
+            if let Some(track) = self.tracks.remove(&id)
+                && let Some(landmark) = track.landmark_id
+            {
+                self.ids.remove(&landmark);
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether block `k` of feature `id` is fully in its own M-space (`E_k B~` has full row
+    /// rank): a wall end seen as a real end.
+    fn block_estimated(&self, id: FeatureId, k: usize) -> Result<bool> {
+        let feature = self.map.get(id)?;
+        if feature.mspace_dim() == 0 {
+            return Ok(false);
+        }
+        let coordinates = feature.coordinates();
+        let dim = coordinates.blocks()[k].dim();
+        let rows = feature
+            .dual()?
+            .rows(coordinates.offset(k), dim)
+            .into_owned();
+        if rows.ncols() < dim {
+            return Ok(false);
+        }
+        let singular = rows.singular_values();
+        let largest = singular.max();
+        Ok(singular.len() == dim && largest > 0.0 && singular.min() > 1e-6 * largest.max(1.0))
+    }
+
+    /// Joins the free shareable blocks of feature `id` with those of other features that are
+    /// the same point (section VI).
+    fn join_corners_of(&mut self, id: FeatureId) -> Result<()> {
+        if !self.is_confirmed(id) {
+            return Ok(());
+        }
+        let feature = self.map.get(id)?;
+        let blocks = feature.shareable_blocks();
+        for k in blocks {
+            if self.map.links(id)?[k].is_some() || !self.block_estimated(id, k)? {
+                continue;
+            }
+            let value = self.map.get(id)?.coordinates().blocks()[k];
+            let here = BoundingBox::of(&slam_core::Coordinates::new(vec![value])?);
+            let corner_distance = self.params.corner_distance;
+            let others: Vec<(FeatureId, usize)> = self
+                .map
+                .iter()
+                .filter(|(other, _)| *other != id && self.is_confirmed(*other))
+                .filter(|(other, _)| {
+                    self.tracks
+                        .get(other)
+                        .is_some_and(|t| t.bbox.near(&here, corner_distance))
+                })
+                .flat_map(|(other, f)| {
+                    f.shareable_blocks()
+                        .into_iter()
+                        .filter(move |&j| {
+                            let b = f.coordinates().blocks()[j];
+                            b.kind() == value.kind() && distance(&b, &value) <= corner_distance
+                        })
+                        .map(move |j| (other, j))
+                })
+                .collect();
+            for (other, j) in others {
+                if self.map.links(other)?[j].is_some() || !self.block_estimated(other, j)? {
+                    continue;
+                }
+                if self.join(id, k, other, j)? {
+                    break;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Joins block `kf` of `f` and block `kg` of `g` if they are statistically the same
+    /// point: a near-perfect constraint update makes them agree, then the map shares the
+    /// block and the covariance is re-parameterized onto the shared rows (eq. 33).
+    fn join(&mut self, f: FeatureId, kf: usize, g: FeatureId, kg: usize) -> Result<bool> {
+        let (rows_f, rows_g) = match (
+            self.rows.get(&RowOwner::Feature(f)),
+            self.rows.get(&RowOwner::Feature(g)),
+        ) {
+            (Some(a), Some(b)) => (a.clone(), b.clone()),
+            _ => return Ok(false),
+        };
+        let (value_f, e_f) = self.block_and_dual(f, kf)?;
+        let (value_g, e_g) = self.block_and_dual(g, kg)?;
+        let dim = value_f.len();
+        // Dry run: both features must accept the shared value.
+        let midpoint = (&value_f + &value_g) / 2.0;
+        for (id, k) in [(f, kf), (g, kg)] {
+            let mut candidate = slam_core::dyn_clone::clone_box(self.map.get(id)?);
+            let block = slam_core::CoordBlock::from_slice(
+                candidate.coordinates().blocks()[k].kind(),
+                midpoint.as_slice(),
+            )?;
+            if candidate.set_block(k, block).is_err() || candidate.share_block(k).is_err() {
+                return Ok(false);
+            }
+        }
+        let mut h = DMatrix::zeros(dim, rows_f.len() + rows_g.len());
+        h.view_mut((0, 0), e_f.shape()).copy_from(&e_f);
+        h.view_mut((0, rows_f.len()), e_g.shape())
+            .copy_from(&(-&e_g));
+        let indices: Vec<usize> = rows_f.iter().chain(&rows_g).copied().collect();
+        let difference = &value_f - &value_g;
+        let c = self.cov.gather(&indices, &indices);
+        let sigma = &h * c * h.transpose();
+        let Some(sigma_inv) = sigma.try_inverse() else {
+            return Ok(false);
+        };
+        let d2 = (difference.transpose() * sigma_inv * &difference)[(0, 0)];
+        let gate = self.gate(self.params.gate_probability, dim)?;
+        if d2.is_nan() || d2 > gate {
+            return Ok(false);
+        }
+        let noise = DMatrix::identity(dim, dim) * JOIN_CONSTRAINT_VARIANCE;
+        if self.params.observability_constraint {
+            h = project_out(&h, &self.cov.generators(&indices));
+        }
+        let dx = self.cov.update(&indices, &h, &noise, &difference)?;
+        self.apply_state_change(&dx)?;
+
+        let (value_f, e_f) = self.block_and_dual(f, kf)?;
+        let (value_g, e_g) = self.block_and_dual(g, kg)?;
+        let dual_f = self.map.get(f)?.dual()?;
+        let dual_g = self.map.get(g)?.dual()?;
+        let corner = (&value_f + &value_g) / 2.0;
+        let kind = self.map.get(f)?.coordinates().blocks()[kf].kind();
+        let shared = self.map.share(
+            &[(f, kf), (g, kg)],
+            slam_core::CoordBlock::from_slice(kind, corner.as_slice())?,
+        )?;
+        let b_f = self.map.get(f)?.projection()?;
+        let b_g = self.map.get(g)?.projection()?;
+        let (rf, rg) = (rows_f.len(), rows_g.len());
+        let (nf, ng) = (b_f.nrows(), b_g.nrows());
+        let mut t = DMatrix::zeros(dim + nf + ng, rf + rg);
+        t.view_mut((0, 0), (dim, rf)).copy_from(&(&e_f * 0.5));
+        t.view_mut((0, rf), (dim, rg)).copy_from(&(&e_g * 0.5));
+        t.view_mut((dim, 0), (nf, rf)).copy_from(&(&b_f * &dual_f));
+        t.view_mut((dim + nf, rf), (ng, rg))
+            .copy_from(&(&b_g * &dual_g));
+        let before = self.cov.dim();
+        let remap = self.cov.reparameterize(&indices, &t)?;
+        self.rows.remove(&RowOwner::Feature(f));
+        self.rows.remove(&RowOwner::Feature(g));
+        for rows in self.rows.values_mut() {
+            for row in rows.iter_mut() {
+                *row = remap[*row]
+                    .ok_or_else(|| Error::InvalidArgument("a kept state row was dropped".into()))?;
+            }
+        }
+        let appended = |k: usize| remap[before + k];
+        let new_rows = |from: usize, count: usize| -> Result<Vec<usize>> {
+            (from..from + count)
+                .map(|k| appended(k).ok_or_else(|| Error::InvalidArgument("lost row".into())))
+                .collect()
+        };
+        self.rows
+            .insert(RowOwner::Shared(shared), new_rows(0, dim)?);
+        if nf > 0 {
+            self.rows.insert(RowOwner::Feature(f), new_rows(dim, nf)?);
+        }
+        if ng > 0 {
+            self.rows
+                .insert(RowOwner::Feature(g), new_rows(dim + nf, ng)?);
+        }
+        self.corners_joined += 1;
+        self.refresh_bbox(f);
+        self.refresh_bbox(g);
+        Ok(true)
+    }
+
+    /// Block `k` of feature `id` as a vector, and its rows of `B~` (`E_k B~`).
+    fn block_and_dual(&self, id: FeatureId, k: usize) -> Result<(DVector<f64>, DMatrix<f64>)> {
+        let feature = self.map.get(id)?;
+        let coordinates = feature.coordinates();
+        let block = coordinates.blocks()[k];
+        let rows = feature
+            .dual()?
+            .rows(coordinates.offset(k), block.dim())
+            .into_owned();
+        Ok((DVector::from_column_slice(block.as_slice()), rows))
+    }
+}
+
+/// Euclidean distance between two blocks of the same kind.
+fn distance(a: &slam_core::CoordBlock, b: &slam_core::CoordBlock) -> f64 {
+    a.as_slice()
+        .iter()
+        .zip(b.as_slice())
+        .map(|(x, y)| (x - y).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}

@@ -83,6 +83,8 @@ pub struct Loaded {
     pub truth: Option<TrueMap>,
     /// The true trajectory, when known.
     pub trajectory: Option<Vec<Pose2>>,
+    /// The range noise of the simulated laser, when the data are simulated with one.
+    pub laser_sigma_range: Option<f64>,
 }
 
 impl DataSpec {
@@ -94,12 +96,14 @@ impl DataSpec {
                 dataset: run.dataset,
                 truth: Some(run.truth),
                 trajectory: Some(run.trajectory),
+                laser_sigma_range: world.laser.as_ref().map(|l| l.sigma_range),
             })
         };
         let plain = |dataset: Dataset| Loaded {
             dataset,
             truth: None,
             trajectory: None,
+            laser_sigma_range: None,
         };
         Ok(match self {
             DataSpec::Sim => simulated(&World::default_world())?,

@@ -1,11 +1,16 @@
 //! The `slam` command.
 
 mod camera;
+mod config;
 mod data;
 mod error;
 mod eval;
 mod extract;
+mod frontend;
+mod outputs;
+mod pipeline;
 mod plot;
+mod run;
 mod simulate;
 
 use clap::{Parser, Subcommand};
@@ -20,6 +25,9 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Run an estimator (default: the EKF on the built-in simulated world) and write
+    /// trajectory.tum, map.json, metrics.json, map.svg and map.png.
+    Run(run::RunArgs),
     /// Run the scan front-ends on one scan and draw what they find.
     Extract(extract::ExtractArgs),
     /// Run the ceiling-image front-end on one image and draw what it finds.
@@ -33,6 +41,7 @@ enum Command {
 fn main() {
     let cli = Cli::parse();
     let result = match &cli.command {
+        Command::Run(args) => run::run(args),
         Command::Extract(args) => extract::run(args),
         Command::Camera(args) => camera::run(args),
         Command::Simulate(args) => simulate::run(args),

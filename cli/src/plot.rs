@@ -26,6 +26,20 @@ pub mod palette {
     pub const POINTS: Colour = plotters::style::RGBColor(230, 120, 20);
     /// Poles.
     pub const POLE: Colour = plotters::style::RGBColor(20, 150, 60);
+    /// True ceiling lines.
+    pub const TRUTH_CEILING: Colour = plotters::style::RGBColor(215, 200, 225);
+    /// Walls with only their line estimated.
+    pub const WALL_LINE_ONLY: Colour = plotters::style::RGBColor(120, 150, 230);
+    /// Estimated wall ends and corners.
+    pub const CORNER: Colour = plotters::style::RGBColor(10, 10, 90);
+    /// Ceiling lines and lamps placed in 3-D.
+    pub const CEILING: Colour = plotters::style::RGBColor(160, 40, 160);
+    /// Ceiling lines with their direction only.
+    pub const CEILING_DIRECTION: Colour = plotters::style::RGBColor(210, 150, 210);
+    /// Point landmarks.
+    pub const POINT: Colour = plotters::style::RGBColor(200, 120, 0);
+    /// GPS fixes.
+    pub const GPS: Colour = plotters::style::RGBColor(90, 170, 220);
     /// Trajectories.
     pub const PATH: Colour = plotters::style::RGBColor(200, 30, 30);
     /// Ground truth trajectories.

@@ -5,12 +5,18 @@
 //! measurement model [`DoorObservation`]. It is the proof that a new feature type needs no
 //! change elsewhere: it implements the slam-core traits, passes the conformance suite, and
 //! runs through the generic map and measurement chain.
+//!
+//! [`EndpointWall`] is a second one: the naive wall representation (both endpoints in the
+//! state, large variance along the wall) that the M-space paper's Fig. 1 argues against. The
+//! `slam` command runs it through the EKF by configuration, for the comparison.
 
 #![warn(missing_docs)]
 
 pub mod door;
+pub mod endpoint_wall;
 
 pub use door::{Door, DoorObservation};
+pub use endpoint_wall::{EndpointWall, EndpointWallObservation};
 
 #[cfg(doctest)]
 #[doc = include_str!("../../README.md")]

@@ -28,13 +28,17 @@
 //!
 //! **Times are line numbers** ([`Clock::Sequence`]): the timestamps of these logs are often
 //! zero, low-precision or wrapping, so an event's time is the 1-based number of its line.
+//!
+//! [`carmen_text`] and [`write_carmen`] write the scans and the dead-reckoned odometry of a
+//! [`Dataset`] as `ROBOTLASER1` and `ODOM` lines that this reader reads back.
 
+use std::fmt::Write as _;
 use std::path::Path;
 
 use slam_core::nalgebra::Vector3;
 use slam_core::{Pose2, Pose3};
 
-use super::{Fields, at, count_skipped, numbered_lines, read_text};
+use super::{Fields, at, count_skipped, numbered_lines, read_text, write_atomically};
 use crate::error::{Result, SensorError};
 use crate::events::{Clock, Dataset, Event, TruthKind};
 use crate::odometry::{OdometryNoise, PoseIncrement};
@@ -315,6 +319,149 @@ fn parse_odometry(fields: &Fields) -> Result<Pose2> {
     Ok(Pose2::new(x, y, theta))
 }
 
+/// The CARMEN text of `dataset` (see [`write_carmen`]); `comment` becomes `#` lines at the top.
+pub fn carmen_text(dataset: &Dataset, start: &Pose2, comment: &str) -> Result<String> {
+    let mut text = String::new();
+    // Writing to a String cannot fail.
+    for line in comment.lines() {
+        let _ = writeln!(text, "# {line}");
+    }
+    let mut pose = *start;
+    let mut last_time = dataset.events.first().map_or(0.0, |e| e.time);
+    let (mut tv, mut rv) = (0.0, 0.0);
+    odometry_line(&mut text, &pose, tv, rv, last_time);
+    for event in &dataset.events {
+        match &event.event {
+            Event::Motion(motion) => {
+                let delta = motion.predict(&Pose2::identity())?.pose;
+                pose = motion.predict(&pose)?.pose;
+                let dt = event.time - last_time;
+                (tv, rv) = if dt > 0.0 {
+                    (delta.x / dt, delta.theta / dt)
+                } else {
+                    (0.0, 0.0)
+                };
+                last_time = event.time;
+                odometry_line(&mut text, &pose, tv, rv, event.time);
+            }
+            Event::Scan {
+                scan,
+                robot_from_sensor,
+            } => robot_laser_line(
+                &mut text,
+                scan,
+                robot_from_sensor,
+                &pose,
+                (tv, rv),
+                event.time,
+            )?,
+            _ => {}
+        }
+    }
+    Ok(text)
+}
+
+/// Writes the laser scans and the odometry of `dataset` as a CARMEN log, completely or not at
+/// all ([`write_atomically`]). Timestamps are the event times (seconds), written as both
+/// `ipc_timestamp` and `logger_timestamp`, with the host name `sim`.
+///
+/// - The robot pose is **dead-reckoned**: it starts at `start` and each [`Event::Motion`]
+///   moves it by its increment, as raw CARMEN logs carry the robot's odometry pose. An `ODOM`
+///   line is written at the first event's time and after every motion, with `tv`, `rv` the
+///   increment's forward distance and turn divided by the time since the previous motion.
+/// - Each [`Event::Scan`] becomes a `ROBOTLASER1` line with the current dead-reckoned pose as
+///   the robot pose and that pose composed with the mount as the laser pose, so that
+///   [`read_carmen`] recovers the mount (its x, y and yaw: the line has no height, and a
+///   tilted mount is an error). Ranges are written in millimetres (3 decimals), with more
+///   digits where rounding would turn a valid reading invalid or the reverse (against the
+///   line's `maximum_range`); non-finite readings are written as the maximum range. The
+///   scan's `min_range` is not in the line (the reader's [`CarmenOptions::min_range`] applies).
+/// - True poses, images, observations and GPS fixes are not written.
+///
+/// ```
+/// use slam_sensors::data::carmen::{CarmenOptions, read_carmen, write_carmen};
+/// use slam_sensors::{Clock, Dataset, Event, LaserScan};
+/// use slam_core::{Pose2, Pose3};
+/// let mut data = Dataset::new("tiny", Clock::Seconds);
+/// let scan = LaserScan::new(-1.0, 1.0, vec![2.0, 3.5, 8.0], 0.0, 8.0).unwrap();
+/// data.push(0.0, Event::Scan { scan: scan.clone(), robot_from_sensor: Pose3::identity() });
+/// let path = std::env::temp_dir().join(format!("carmen-write-doc-{}.log", std::process::id()));
+/// write_carmen(&path, &data, &Pose2::new(1.0, 2.0, 0.5), "a test").unwrap();
+/// let back = read_carmen(&path, &CarmenOptions::default()).unwrap();
+/// let Event::Scan { scan: read, .. } = &back.events[0].event else { panic!() };
+/// assert_eq!((read.ranges.clone(), read.max_range), (scan.ranges, 8.0));
+/// # std::fs::remove_file(&path).unwrap();
+/// ```
+pub fn write_carmen(path: &Path, dataset: &Dataset, start: &Pose2, comment: &str) -> Result<()> {
+    write_atomically(path, carmen_text(dataset, start, comment)?.as_bytes())
+}
+
+/// `ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp`.
+fn odometry_line(text: &mut String, pose: &Pose2, tv: f64, rv: f64, time: f64) {
+    let _ = writeln!(
+        text,
+        "ODOM {:.9} {:.9} {:.9} {tv:.6} {rv:.6} 0 {time:.6} sim {time:.6}",
+        pose.x, pose.y, pose.theta
+    );
+}
+
+/// A `ROBOTLASER1` line (field order in the [module](self) documentation).
+fn robot_laser_line(
+    text: &mut String,
+    scan: &LaserScan,
+    mount: &Pose3,
+    pose: &Pose2,
+    (tv, rv): (f64, f64),
+    time: f64,
+) -> Result<()> {
+    if mount.pitch.abs() > 1e-12 || mount.roll.abs() > 1e-12 {
+        return Err(SensorError::InvalidArgument(format!(
+            "a CARMEN laser line holds a level laser only, this one is tilted \
+             (pitch {}, roll {})",
+            mount.pitch, mount.roll
+        )));
+    }
+    let laser = pose.compose(&Pose2::new(
+        mount.translation.x,
+        mount.translation.y,
+        mount.yaw,
+    ));
+    let n = scan.ranges.len();
+    let fov = scan.angle_increment * n.saturating_sub(1) as f64;
+    let _ = write!(
+        text,
+        "ROBOTLASER1 0 {} {fov} {} {} 0 0 {n}",
+        scan.angle_min, scan.angle_increment, scan.max_range
+    );
+    for &range in &scan.ranges {
+        let _ = write!(text, " {}", range_field(range, scan));
+    }
+    let _ = writeln!(
+        text,
+        " 0 {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {tv:.6} {rv:.6} 0 0 0 {time:.6} sim {time:.6}",
+        laser.x, laser.y, laser.theta, pose.x, pose.y, pose.theta
+    );
+    Ok(())
+}
+
+/// A range in millimetres, or with all its digits where rounding would change its validity.
+fn range_field(range: f64, scan: &LaserScan) -> String {
+    let range = if range.is_finite() {
+        range
+    } else {
+        scan.max_range
+    };
+    let short = format!("{range:.3}");
+    let keeps_validity = short
+        .parse::<f64>()
+        .is_ok_and(|r| scan.is_valid(r) == scan.is_valid(range));
+    if keeps_validity {
+        short
+    } else {
+        format!("{range}")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -325,6 +472,29 @@ mod tests {
         let path = dir.join(format!("{name}.log"));
         std::fs::write(&path, text).unwrap();
         read_carmen(&path, options)
+    }
+
+    #[test]
+    fn written_ranges_keep_their_validity() {
+        let scan = LaserScan::new(-1.0, 1.0, vec![1.0], 0.0, 8.0).unwrap();
+        assert_eq!(range_field(2.34567, &scan), "2.346");
+        assert_eq!(range_field(7.99996, &scan), "7.99996");
+        assert_eq!(range_field(8.0, &scan), "8.000");
+        assert_eq!(range_field(f64::NAN, &scan), "8.000");
+        assert_eq!(range_field(0.0002, &scan), "0.0002");
+        let tilted = Pose3::new(Vector3::zeros(), 0.0, 0.1, 0.0);
+        let mut text = String::new();
+        let e = robot_laser_line(
+            &mut text,
+            &scan,
+            &tilted,
+            &Pose2::identity(),
+            (0.0, 0.0),
+            0.0,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("tilted"), "{e}");
     }
 
     #[test]

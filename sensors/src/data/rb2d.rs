@@ -17,14 +17,18 @@
 //! `sigma_w`; `OBS`: `dt`, `sigma_r`, `sigma_b`; `GT`: `dt`) before its `PARAM` line is an
 //! error too, as are unknown records and parameter names, wrong field counts, and
 //! non-numeric or non-finite values, each with `file:line` and the reason.
+//!
+//! [`rb2d_text`] and [`write_rb2d`] write a [`Dataset`] as an rb2d log that this reader turns
+//! back into the same odometry increments, observations and true poses.
 
+use std::fmt::Write as _;
 use std::path::Path;
 
 use slam_core::nalgebra::{Matrix3, Vector2, Vector3};
 use slam_core::{Observation, Pose2, Pose3};
 
-use super::{Fields, count_skipped, numbered_lines, read_text};
-use crate::error::Result;
+use super::{Fields, count_skipped, numbered_lines, read_text, write_atomically};
+use crate::error::{Result, SensorError};
 use crate::events::{Clock, Dataset, Event, KnownLandmark, TruthKind};
 use crate::models::RangeBearing;
 use crate::odometry::{Integration, PoseIncrement, Unicycle};
@@ -279,4 +283,311 @@ fn read_truth(fields: &Fields, state: &mut State, dataset: &mut Dataset) -> Resu
         },
     );
     Ok(())
+}
+
+/// The `PARAM` values of an rb2d log (units: m, rad, s). The range-bearing values are
+/// optional: a log without observations needs none of them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Rb2dParams {
+    /// Nominal step, s (`PARAM dt`): step `k` is at time `k dt`.
+    pub dt: f64,
+    /// Forward speed noise, m/s (`PARAM sigma_v`).
+    pub sigma_v: f64,
+    /// Yaw rate noise, rad/s (`PARAM sigma_w`).
+    pub sigma_w: f64,
+    /// Range noise, m (`PARAM sigma_r`); needed when there are observations.
+    pub sigma_r: Option<f64>,
+    /// Bearing noise, rad (`PARAM sigma_b`); needed when there are observations.
+    pub sigma_b: Option<f64>,
+    /// Sensor range, m (`PARAM max_range`).
+    pub max_range: Option<f64>,
+}
+
+impl Rb2dParams {
+    fn check(&self) -> Result<()> {
+        let positive = [("dt", Some(self.dt)), ("sigma_r", self.sigma_r)]
+            .into_iter()
+            .chain([("sigma_b", self.sigma_b), ("max_range", self.max_range)]);
+        for (name, value) in positive {
+            if let Some(v) = value.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                return Err(SensorError::InvalidArgument(format!(
+                    "rb2d parameter {name} must be finite and positive, got {v}"
+                )));
+            }
+        }
+        for (name, v) in [("sigma_v", self.sigma_v), ("sigma_w", self.sigma_w)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(SensorError::InvalidArgument(format!(
+                    "rb2d parameter {name} must be finite and non-negative, got {v}"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The records of one step.
+#[derive(Default)]
+struct StepRecords {
+    odometry: Option<Pose2>,
+    observations: Vec<(i64, f64, f64)>,
+    truth: Option<Pose2>,
+}
+
+/// The rb2d text of `dataset` (see [`write_rb2d`]); `comment` becomes `#` lines at the top.
+pub fn rb2d_text(dataset: &Dataset, params: &Rb2dParams, comment: &str) -> Result<String> {
+    params.check()?;
+    let mut steps: std::collections::BTreeMap<u64, StepRecords> = Default::default();
+    for event in &dataset.events {
+        let k = step_of(event.time, params.dt)?;
+        let records = steps.entry(k).or_default();
+        let invalid = |message: String| {
+            Err(SensorError::InvalidArgument(format!(
+                "rb2d, step {k} (time {}): {message}",
+                event.time
+            )))
+        };
+        match &event.event {
+            Event::Motion(motion) => {
+                if k == 0 {
+                    return invalid("a motion cannot end at step 0".into());
+                }
+                if records.odometry.is_some() {
+                    return invalid(
+                        "two motions end at this step (rb2d has one ODOM per step)".into(),
+                    );
+                }
+                records.odometry = Some(motion.predict(&Pose2::identity())?.pose);
+            }
+            Event::Observations(observations) => {
+                for observation in observations {
+                    match range_bearing(observation, params) {
+                        Ok(record) => records.observations.push(record),
+                        Err(message) => return invalid(message),
+                    }
+                }
+            }
+            Event::GroundTruth {
+                pose,
+                kind: TruthKind::True,
+            } => {
+                if records.truth.is_some() {
+                    return invalid("two true poses at this step".into());
+                }
+                records.truth = Some(*pose);
+            }
+            Event::GroundTruth { .. }
+            | Event::Scan { .. }
+            | Event::Image { .. }
+            | Event::Gps(_) => {}
+        }
+    }
+    let mut text = String::new();
+    // Writing to a String cannot fail.
+    for line in comment.lines() {
+        let _ = writeln!(text, "# {line}");
+    }
+    let optional = [
+        ("sigma_r", params.sigma_r),
+        ("sigma_b", params.sigma_b),
+        ("max_range", params.max_range),
+    ];
+    let given = [
+        ("dt", Some(params.dt)),
+        ("sigma_v", Some(params.sigma_v)),
+        ("sigma_w", Some(params.sigma_w)),
+    ];
+    for (name, value) in given.into_iter().chain(optional) {
+        if let Some(value) = value {
+            let _ = writeln!(text, "PARAM {name} {value}");
+        }
+    }
+    for landmark in &dataset.landmarks {
+        let p = landmark.position;
+        let _ = writeln!(text, "LM {} {} {}", landmark.id, p.x, p.y);
+    }
+    for (k, records) in &steps {
+        if let Some(d) = records.odometry {
+            let _ = writeln!(text, "ODOM {k} {} {} {} {}", params.dt, d.x, d.y, d.theta);
+        }
+        for (id, range, bearing) in &records.observations {
+            let _ = writeln!(text, "OBS {k} {id} {range} {bearing}");
+        }
+        if let Some(p) = records.truth {
+            let _ = writeln!(text, "GT {k} {} {} {}", p.x, p.y, p.theta);
+        }
+    }
+    Ok(text)
+}
+
+/// Writes `dataset` as an rb2d log, completely or not at all ([`write_atomically`]).
+///
+/// - `PARAM` lines from `params`; `LM` lines from [`Dataset::landmarks`].
+/// - Every event's time must be a multiple `k dt` of `params.dt` (within 1e-6 of a step).
+/// - A [`Event::Motion`] ending at step `k` becomes `ODOM k dt dx dy dth` with `(dx, dy, dth)`
+///   its pose increment (the motion applied to the identity pose). A [`Unicycle`] with
+///   [`Integration::Euler`] gives `dy = 0`, which the reader turns back into the same unicycle;
+///   any other motion (e.g. an exact arc) gives its exact increment, which the reader turns
+///   into a [`PoseIncrement`] reproducing it (with the reader's covariance for increments).
+/// - Each [`RangeBearing`] observation becomes `OBS k id range bearing` (`id` -1 without a
+///   landmark id); observations must have the sensor at the robot origin and the noise of
+///   `params` (the file holds one `sigma_r` and one `sigma_b`), and other measurement types are
+///   errors.
+/// - A [`TruthKind::True`] pose becomes `GT k x y th`; reference poses, scans, images and GPS
+///   fixes are not written.
+///
+/// Numbers are written in Rust's shortest round-trip form, so they read back exactly.
+///
+/// ```
+/// use slam_sensors::data::rb2d::{Rb2dParams, read_rb2d, write_rb2d};
+/// use slam_sensors::odometry::{Integration, Unicycle};
+/// use slam_sensors::{Clock, Dataset, Event};
+/// let mut data = Dataset::new("tiny", Clock::Seconds);
+/// let step = Unicycle::new(1.0, 0.5, 0.1, 0.1, 0.03, Integration::Euler).unwrap();
+/// data.push(0.1, Event::Motion(Box::new(step)));
+/// let params = Rb2dParams { dt: 0.1, sigma_v: 0.1, sigma_w: 0.03, sigma_r: None, sigma_b: None, max_range: None };
+/// let path = std::env::temp_dir().join(format!("rb2d-write-doc-{}.txt", std::process::id()));
+/// write_rb2d(&path, &data, &params, "one step").unwrap();
+/// let text = std::fs::read_to_string(&path).unwrap();
+/// assert!(text.contains("ODOM 1 0.1 0.1 0 0.05"), "{text}");
+/// assert_eq!(read_rb2d(&path).unwrap().counts().motion, 1);
+/// # std::fs::remove_file(&path).unwrap();
+/// ```
+pub fn write_rb2d(
+    path: &Path,
+    dataset: &Dataset,
+    params: &Rb2dParams,
+    comment: &str,
+) -> Result<()> {
+    write_atomically(path, rb2d_text(dataset, params, comment)?.as_bytes())
+}
+
+/// The step `k` of an event at `time`, when `time` is `k dt`.
+fn step_of(time: f64, dt: f64) -> Result<u64> {
+    let k = (time / dt).round();
+    if !(k >= 0.0 && (time / dt - k).abs() <= 1e-6 && k < 9.0e15) {
+        return Err(SensorError::InvalidArgument(format!(
+            "rb2d: event time {time} is not a non-negative multiple of dt {dt}"
+        )));
+    }
+    Ok(k as u64)
+}
+
+/// An observation as `(id, range, bearing)`, or why rb2d cannot hold it.
+fn range_bearing(
+    observation: &Observation,
+    params: &Rb2dParams,
+) -> std::result::Result<(i64, f64, f64), String> {
+    let Some(rb) = observation
+        .measurement
+        .as_any()
+        .downcast_ref::<RangeBearing>()
+    else {
+        return Err(format!(
+            "rb2d holds range-bearing observations only, got a measurement of a {}",
+            observation.measurement.feature_type_name()
+        ));
+    };
+    let mount = &observation.robot_from_sensor;
+    if mount.to_vector().amax() > 1e-12 {
+        return Err(format!(
+            "rb2d observations are taken at the robot origin, this sensor is at {mount:?}"
+        ));
+    }
+    let same = |a: Option<f64>, b: f64| a.is_some_and(|a| (a - b).abs() <= 1e-9 * b.abs());
+    if !same(params.sigma_r, rb.sigma_range) || !same(params.sigma_b, rb.sigma_bearing) {
+        return Err(format!(
+            "observation noise (sigma_r {}, sigma_b {}) differs from the PARAM values ({:?}, {:?})",
+            rb.sigma_range, rb.sigma_bearing, params.sigma_r, params.sigma_b
+        ));
+    }
+    let id = match observation.landmark_id {
+        None => -1,
+        Some(id) => i64::try_from(id).map_err(|_| format!("landmark id {id} is too large"))?,
+    };
+    Ok((id, rb.range, rb.bearing))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use slam_core::nalgebra::Vector3;
+
+    fn params() -> Rb2dParams {
+        Rb2dParams {
+            dt: 0.1,
+            sigma_v: 0.1,
+            sigma_w: 0.02,
+            sigma_r: Some(0.1),
+            sigma_b: Some(0.01),
+            max_range: Some(10.0),
+        }
+    }
+
+    fn observation(sigma_r: f64, mount: Pose3) -> Event {
+        Event::Observations(vec![Observation {
+            robot_from_sensor: mount,
+            measurement: Box::new(RangeBearing::new(3.0, 0.5, sigma_r, 0.01).unwrap()),
+            landmark_id: Some(4),
+        }])
+    }
+
+    #[test]
+    fn records_are_ordered_within_a_step() {
+        let mut data = Dataset::new("t", Clock::Seconds);
+        data.push(0.0, observation(0.1, Pose3::identity()));
+        let truth = |x| Event::GroundTruth {
+            pose: Pose2::new(x, 0.0, 0.0),
+            kind: TruthKind::True,
+        };
+        data.push(0.1, truth(0.1));
+        data.push(0.1, observation(0.1, Pose3::identity()));
+        let step = Unicycle::new(1.0, 0.0, 0.1, 0.1, 0.02, Integration::Arc).unwrap();
+        data.push(0.1, Event::Motion(Box::new(step)));
+        let text = rb2d_text(&data, &params(), "c").unwrap();
+        let records: Vec<_> = text
+            .lines()
+            .filter(|l| !l.starts_with("PARAM"))
+            .map(|l| l.split_whitespace().take(2).collect::<Vec<_>>().join(" "))
+            .collect();
+        assert_eq!(records, ["# c", "OBS 0", "ODOM 1", "OBS 1", "GT 1"]);
+    }
+
+    #[test]
+    fn what_rb2d_cannot_hold_is_an_error() {
+        let cases: [(f64, Event, &str); 4] = [
+            (
+                0.15,
+                observation(0.1, Pose3::identity()),
+                "not a non-negative multiple",
+            ),
+            (
+                0.1,
+                observation(0.2, Pose3::identity()),
+                "differs from the PARAM",
+            ),
+            (
+                0.1,
+                observation(0.1, Pose3::new(Vector3::new(0.2, 0.0, 0.0), 0.0, 0.0, 0.0)),
+                "robot origin",
+            ),
+            (
+                0.0,
+                Event::Motion(Box::new(
+                    Unicycle::new(1.0, 0.0, 0.1, 0.1, 0.02, Integration::Euler).unwrap(),
+                )),
+                "cannot end at step 0",
+            ),
+        ];
+        for (time, event, reason) in cases {
+            let mut data = Dataset::new("t", Clock::Seconds);
+            data.push(time, event);
+            let e = rb2d_text(&data, &params(), "").unwrap_err().to_string();
+            assert!(e.contains(reason), "{e} vs {reason}");
+        }
+        let mut bad = params();
+        bad.sigma_r = Some(-1.0);
+        let empty = Dataset::new("t", Clock::Seconds);
+        assert!(rb2d_text(&empty, &bad, "").is_err());
+    }
 }

@@ -1,24 +1,30 @@
-//! The simulator, the embedded default world: a robot follows waypoints through a world of
-//! walls, poles, ceiling lines and lamps, and produces, seeded and reproducibly, noisy wheel
-//! odometry, laser scans by ray casting, ceiling-camera images, and its true poses.
+//! The simulator, the embedded default world: a robot follows waypoints (or constant
+//! controls) through a world of walls, poles, ceiling lines, lamps and point landmarks, and
+//! produces, seeded and reproducibly, noisy wheel odometry, laser scans by ray casting,
+//! ceiling-camera images, range-bearing landmark observations, and its true poses.
+//!
+//! Each sensor draws its noise from its own random stream derived from the seed (odometry 1,
+//! laser 2, camera 3, range-bearing 4), so adding or removing a sensor does not change the
+//! others' outputs for the same seed.
 
 pub mod raycast;
 pub mod render;
 mod world;
 
 pub use world::{
-    CameraSpec, CeilingLineSpec, DEFAULT_WORLD_TOML, LampSpec, LaserSpec, OdometrySpec, PoleSpec,
-    RobotSpec, TrueMap, WallChain, World,
+    CameraSpec, CeilingLineSpec, ConstantControls, DEFAULT_WORLD_TOML, LampSpec, LandmarkSpec,
+    LaserSpec, OdometrySpec, PoleSpec, RangeBearingSpec, RobotSpec, TrueMap, WallChain, World,
 };
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use slam_core::nalgebra::{Vector2, Vector3};
-use slam_core::{Pose2, RobotPose, wrap_angle};
+use slam_core::{Observation, Pose2, Pose3, RobotPose, wrap_angle};
 
 use crate::error::{Result, SensorError};
 use crate::events::{Clock, Dataset, Event, KnownLandmark, TruthKind};
+use crate::models::RangeBearing;
 use crate::odometry::{Integration, Unicycle};
 use crate::scan::LaserScan;
 use render::{Ceiling, render_ceiling};
@@ -29,7 +35,9 @@ pub const MAX_STEPS: usize = 200_000;
 /// A simulated run: the event stream, the true trajectory and the true map.
 #[derive(Debug)]
 pub struct Simulation {
-    /// Odometry, scans, images and ground truth, in time order.
+    /// Odometry, scans, images, range-bearing observations and ground truth, in time order.
+    /// At each step `k` (time `k dt`): the motion that led to the step (from step 1), the true
+    /// pose, then the scan, the image and the observations that the step has.
     pub dataset: Dataset,
     /// The true pose at every step (step k at time k dt).
     pub trajectory: Vec<Pose2>,
@@ -46,6 +54,9 @@ struct Control {
 
 /// Simulates `world` with the random seed `seed`: the same world and seed give the same run.
 ///
+/// [`Dataset::landmarks`] lists the point landmarks with their range-bearing ids (pole
+/// centres first, then `[[landmarks]]`: [`TrueMap::point_landmarks`]).
+///
 /// ```
 /// use slam_sensors::sim::{simulate, World};
 /// let mut world = World::default_world();
@@ -61,6 +72,7 @@ pub fn simulate(world: &World, seed: u64) -> Result<Simulation> {
     let mut odometry_rng = stream(seed, 1);
     let mut laser_rng = stream(seed, 2);
     let mut camera_rng = stream(seed, 3);
+    let mut range_bearing_rng = stream(seed, 4);
     let ceiling = Ceiling {
         lines: truth.ceiling_lines.clone(),
         lamps: world
@@ -70,15 +82,7 @@ pub fn simulate(world: &World, seed: u64) -> Result<Simulation> {
             .collect(),
     };
     let mut dataset = Dataset::new(format!("simulated {}", world.name), Clock::Seconds);
-    dataset.landmarks = truth
-        .poles
-        .iter()
-        .enumerate()
-        .map(|(i, (c, _))| KnownLandmark {
-            id: i as u64,
-            position: *c,
-        })
-        .collect();
+    dataset.landmarks = truth.point_landmarks();
     for (k, pose) in trajectory.iter().enumerate() {
         let time = k as f64 * dt;
         if k > 0 {
@@ -114,6 +118,13 @@ pub fn simulate(world: &World, seed: u64) -> Result<Simulation> {
                 },
             );
         }
+        if let Some(sensor) = world.range_bearing.as_ref().filter(|s| k % s.every == 0) {
+            let observations =
+                observe_landmarks(pose, sensor, &dataset.landmarks, &mut range_bearing_rng)?;
+            if !observations.is_empty() {
+                dataset.push(time, Event::Observations(observations));
+            }
+        }
     }
     Ok(Simulation {
         dataset,
@@ -130,14 +141,27 @@ fn stream(seed: u64, purpose: u64) -> ChaCha8Rng {
     rng
 }
 
-/// Drives the waypoints: turn towards the next one (proportional yaw rate, limited), slow down
-/// while the heading error is large, integrate exact arcs.
+/// Drives the robot: constant controls when the world gives them, otherwise through the
+/// waypoints: turn towards the next one (proportional yaw rate, limited), slow down while the
+/// heading error is large. Steps integrate as the world says (exact arcs by default).
 fn drive(world: &World) -> Result<(Vec<Pose2>, Vec<Control>)> {
     let robot = &world.robot;
     let max_yaw_rate = robot.max_yaw_rate_deg.to_radians();
     let mut pose = world.start_pose();
     let mut poses = vec![pose];
     let mut controls = Vec::new();
+    if let Some(constant) = &robot.controls {
+        let control = Control {
+            v: constant.v,
+            omega: constant.omega_deg.to_radians(),
+        };
+        for _ in 0..constant.steps {
+            pose = advance(&pose, &control, robot.dt, robot.integration);
+            poses.push(pose);
+            controls.push(control);
+        }
+        return Ok((poses, controls));
+    }
     let targets = (0..robot.laps).flat_map(|_| robot.waypoints.iter());
     for target in targets {
         let target = Vector2::new(target[0], target[1]);
@@ -158,7 +182,7 @@ fn drive(world: &World) -> Result<(Vec<Pose2>, Vec<Control>)> {
                 * error.cos().max(0.0).powi(4)
                 * (to_target.norm() / 0.5).clamp(0.2, 1.0);
             let control = Control { v, omega };
-            pose = advance(&pose, &control, robot.dt);
+            pose = advance(&pose, &control, robot.dt, robot.integration);
             poses.push(pose);
             controls.push(control);
         }
@@ -166,9 +190,9 @@ fn drive(world: &World) -> Result<(Vec<Pose2>, Vec<Control>)> {
     Ok((poses, controls))
 }
 
-fn advance(pose: &Pose2, control: &Control, dt: f64) -> Pose2 {
-    // Noise-free: the exact arc of the unicycle.
-    match Unicycle::new(control.v, control.omega, dt, 0.0, 0.0, Integration::Arc) {
+fn advance(pose: &Pose2, control: &Control, dt: f64, integration: Integration) -> Pose2 {
+    // Noise-free: the unicycle's step (the exact arc by default).
+    match Unicycle::new(control.v, control.omega, dt, 0.0, 0.0, integration) {
         Ok(step) => slam_core::MotionModel::apply_control(&step, pose, &step_control(&step))
             .unwrap_or(*pose),
         Err(_) => *pose,
@@ -192,8 +216,46 @@ fn noisy_odometry(control: &Control, world: &World, rng: &mut ChaCha8Rng) -> Res
         world.robot.dt,
         sigma_v,
         sigma_omega,
-        Integration::Arc,
+        world.robot.integration,
     )
+}
+
+/// The range-bearing observations from `pose` of the `landmarks` in range and in the field of
+/// view (no occlusion), with noise; one noise pair is drawn per visible landmark, in id order.
+fn observe_landmarks(
+    pose: &Pose2,
+    sensor: &RangeBearingSpec,
+    landmarks: &[KnownLandmark],
+    rng: &mut ChaCha8Rng,
+) -> Result<Vec<Observation>> {
+    let sigma_bearing = sensor.sigma_bearing_deg.to_radians();
+    let half_fov = 0.5 * sensor.fov_deg.to_radians();
+    let mut observations = Vec::new();
+    for landmark in landmarks {
+        let local = pose.inverse_transform_point(&landmark.position);
+        let range = local.norm();
+        let bearing = local.y.atan2(local.x);
+        if range > sensor.max_range || range < 1e-9 || bearing.abs() > half_fov {
+            continue;
+        }
+        let noisy_range = range + gaussian(rng, sensor.sigma_range);
+        let noisy_bearing = bearing + gaussian(rng, sigma_bearing);
+        if noisy_range <= 0.0 {
+            continue;
+        }
+        let measurement = RangeBearing::new(
+            noisy_range,
+            noisy_bearing,
+            sensor.sigma_range,
+            sigma_bearing,
+        )?;
+        observations.push(Observation {
+            robot_from_sensor: Pose3::identity(),
+            measurement: Box::new(measurement),
+            landmark_id: Some(landmark.id),
+        });
+    }
+    Ok(observations)
 }
 
 fn gaussian(rng: &mut ChaCha8Rng, sigma: f64) -> f64 {
@@ -328,5 +390,172 @@ mod tests {
         };
         assert_eq!(scans(3), scans(3));
         assert_ne!(scans(3), scans(4));
+    }
+
+    /// A short, camera-less run of the default world (the camera is the slow part).
+    fn short_world() -> World {
+        let mut world = World::default_world();
+        world.robot.waypoints.truncate(1);
+        world.camera = None;
+        world
+    }
+
+    #[test]
+    fn the_range_bearing_sensor_does_not_change_the_other_sensors() {
+        let mut world = World::default_world();
+        world.robot.waypoints.truncate(3); // into the pillar room: the poles are seen
+        assert!(world.range_bearing.is_some());
+        let without = {
+            let mut w = world.clone();
+            w.range_bearing = None;
+            simulate(&w, 5).unwrap()
+        };
+        let with = simulate(&world, 5).unwrap();
+        let others = |run: &Simulation| {
+            run.dataset
+                .events
+                .iter()
+                .filter_map(|e| match &e.event {
+                    Event::Observations(_) => None,
+                    Event::Motion(m) => Some(format!("{} {:?}", e.time, m.control())),
+                    other => Some(format!("{} {other:?}", e.time)),
+                })
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(others(&with), others(&without));
+        assert_eq!(without.dataset.counts().observations, 0);
+        assert!(with.dataset.counts().observations > 0);
+    }
+
+    #[test]
+    fn range_bearing_observations_match_the_truth_and_ignore_walls() {
+        let mut world = short_world();
+        world.laser = None;
+        world.landmarks = vec![
+            LandmarkSpec { x: 5.0, y: 7.5 },  // ahead in the corridor
+            LandmarkSpec { x: 1.5, y: 3.0 },  // behind a wall, 4.5 m to the right
+            LandmarkSpec { x: -3.0, y: 7.5 }, // behind the start, 4.5 m
+            LandmarkSpec { x: 1.5, y: 20.0 }, // beyond the range
+        ];
+        world.range_bearing = Some(RangeBearingSpec {
+            max_range: 8.0,
+            sigma_range: 1e-9,
+            sigma_bearing_deg: 1e-9,
+            every: 3,
+            fov_deg: 200.0,
+        });
+        let run = simulate(&world, 2).unwrap();
+        let poles = world.poles.len() as u64;
+        assert_eq!(run.dataset.landmarks.len(), world.poles.len() + 4);
+        assert_eq!(run.dataset.landmarks[4].id, poles);
+        let mut first = true;
+        for e in &run.dataset.events {
+            let Event::Observations(observations) = &e.event else {
+                continue;
+            };
+            let k = (e.time / world.robot.dt).round() as usize;
+            assert_eq!(k % 3, 0);
+            let pose = run.trajectory[k];
+            for o in observations {
+                let id = o.landmark_id.unwrap();
+                let rb = o
+                    .measurement
+                    .as_any()
+                    .downcast_ref::<RangeBearing>()
+                    .unwrap();
+                let local =
+                    pose.inverse_transform_point(&run.dataset.landmarks[id as usize].position);
+                assert!((rb.range - local.norm()).abs() < 1e-6);
+                assert!(wrap_angle(rb.bearing - local.y.atan2(local.x)).abs() < 1e-6);
+                assert!(local.norm() <= 8.0 && local.y.atan2(local.x).abs() <= 100f64.to_radians());
+            }
+            if first {
+                // At the start: the landmark ahead and the one behind the wall, not the one
+                // behind the robot (field of view) nor the far one.
+                let ids: Vec<_> = observations.iter().map(|o| o.landmark_id).collect();
+                assert_eq!(ids, vec![Some(poles), Some(poles + 1)]);
+                first = false;
+            }
+        }
+        assert!(!first);
+    }
+
+    #[test]
+    fn constant_controls_drive_an_exact_circle() {
+        let mut world = short_world();
+        world.robot.waypoints.clear();
+        world.robot.start = [0.0, 0.0];
+        world.robot.controls = Some(ConstantControls {
+            v: 1.0,
+            omega_deg: 9.0,
+            steps: 400,
+        });
+        for integration in [Integration::Arc, Integration::Euler] {
+            world.robot.integration = integration;
+            let (poses, controls) = drive(&world).unwrap();
+            assert_eq!((poses.len(), controls.len()), (401, 400));
+            let phi = 0.9f64.to_radians();
+            let (radius, centre) = match integration {
+                Integration::Arc => (
+                    1.0 / 9f64.to_radians(),
+                    Vector2::new(0.0, 1.0 / 9f64.to_radians()),
+                ),
+                Integration::Euler => {
+                    let rho = 0.1 / (2.0 * (phi / 2.0).sin());
+                    (rho, Vector2::new(0.05, rho * (phi / 2.0).cos()))
+                }
+            };
+            for p in &poses {
+                assert!(((p.translation() - centre).norm() - radius).abs() < 1e-9);
+            }
+            // 400 steps of 0.9 degrees: one lap, back at the start.
+            assert!(poses[400].translation().norm() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn robot_modes_and_range_bearing_keys_are_checked() {
+        let base = "name = \"w\"\n[robot]\nstart = [0.0, 0.0]\n";
+        let circle = format!("{base}controls = {{ v = 1.0, omega_deg = 5.0, steps = 10 }}\n");
+        assert!(World::from_toml(&circle, "c.toml").is_ok());
+        let both = format!("{circle}waypoints = [[1.0, 0.0]]\n");
+        let e = World::from_toml(&both, "both.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("either waypoints or constant controls"), "{e}");
+        let neither = World::from_toml(base, "none.toml").unwrap_err().to_string();
+        assert!(neither.contains("at least one waypoint"), "{neither}");
+        let typo = format!("{base}controls = {{ v = 1.0, omega = 5.0, steps = 10 }}\n");
+        let e = World::from_toml(&typo, "typo.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("typo.toml") && e.contains("omega"), "{e}");
+        let sensor = "[range_bearing]\nmax_range = 5.0\nsigma_range = 0.1\nsigma_bearing_deg = 1.0\nevery = 1\n";
+        let with_sensor = format!("{circle}{sensor}");
+        let world = World::from_toml(&with_sensor, "rb.toml").unwrap();
+        assert_eq!(world.range_bearing.as_ref().map(|s| s.fov_deg), Some(360.0));
+        let unknown = format!("{with_sensor}sigma_range_deg = 2.0\n");
+        let e = World::from_toml(&unknown, "rb.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("rb.toml") && e.contains("sigma_range_deg"),
+            "{e}"
+        );
+        let missing = with_sensor.replace("every = 1\n", "");
+        let e = World::from_toml(&missing, "rb.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("every"), "{e}");
+        let zero = with_sensor.replace("sigma_range = 0.1", "sigma_range = 0.0");
+        assert!(World::from_toml(&zero, "rb.toml").is_err());
+        let landmark = format!("{circle}[[landmarks]]\nx = 1.0\ny = 2.0\nz = 3.0\n");
+        let e = World::from_toml(&landmark, "lm.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("line 8") && e.contains("unknown field `z`"),
+            "{e}"
+        );
     }
 }

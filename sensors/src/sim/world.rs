@@ -1,15 +1,20 @@
 //! The world description: walls (chains whose vertices are shared corners), poles, ceiling
-//! lines, lamps, the robot's path, and the sensors with their noise. Read from TOML or JSON;
-//! unknown keys are errors.
+//! lines, lamps, point landmarks, the robot's path, and the sensors with their noise. Read
+//! from TOML or JSON; unknown keys are errors.
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{Vector2, Vector3};
 use slam_core::{Pose2, Pose3};
 
 use crate::camera::PinholeCamera;
+use crate::data::rb2d::Rb2dParams;
 use crate::error::{Result, SensorError};
+use crate::events::KnownLandmark;
+use crate::odometry::Integration;
 
-/// A simulated world. See `sensors/src/sim/default_world.toml` for a documented example.
+/// A simulated world. See `sensors/src/sim/default_world.toml` for a documented example (it
+/// lists every key), and `worlds/rb2d-circle.toml` for a landmark-only world driven by
+/// constant controls.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct World {
@@ -27,6 +32,10 @@ pub struct World {
     /// Round ceiling lamps.
     #[serde(default)]
     pub lamps: Vec<LampSpec>,
+    /// Point landmarks (`[[landmarks]]`), seen only by the range-bearing sensor; their ids
+    /// follow the poles' (see [`TrueMap::point_landmarks`]).
+    #[serde(default)]
+    pub landmarks: Vec<LandmarkSpec>,
     /// The robot's path and speed.
     pub robot: RobotSpec,
     /// Wheel odometry noise.
@@ -38,6 +47,9 @@ pub struct World {
     /// The ceiling camera; absent means none.
     #[serde(default)]
     pub camera: Option<CameraSpec>,
+    /// The range-bearing landmark sensor (`[range_bearing]`); absent means none.
+    #[serde(default)]
+    pub range_bearing: Option<RangeBearingSpec>,
 }
 
 /// A chain of walls through `points`; closed chains also join the last point to the first.
@@ -94,7 +106,27 @@ fn default_lamp_radius() -> f64 {
     0.15
 }
 
-/// The robot: waypoints it drives through, in order, `laps` times.
+/// A point landmark (`[[landmarks]]`): seen by the range-bearing sensor only, invisible to the
+/// laser and the camera.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LandmarkSpec {
+    /// Position x, m.
+    pub x: f64,
+    /// Position y, m.
+    pub y: f64,
+}
+
+/// The robot and how it moves: either through `waypoints` (in order, `laps` times, steered by
+/// a proportional controller at up to `speed` and `max_yaw_rate_deg`, a waypoint being
+/// reached within `reach`), or with constant `controls` for a fixed number of steps (then
+/// `laps`, `speed`, `max_yaw_rate_deg` and `reach` are not used).
+///
+/// Each step lasts `dt` and holds the speed and yaw rate constant; `integration` says how the
+/// step moves the robot: `"arc"` (default) the exact constant-velocity arc, `"euler"`
+/// straight ahead by `v dt`, then a turn by `omega dt` (the rb2d convention; under constant
+/// controls the poses then lie exactly on a circle of radius `v dt / (2 sin(omega dt / 2))`).
+/// The noisy odometry uses the same integration as the true motion.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RobotSpec {
@@ -103,8 +135,15 @@ pub struct RobotSpec {
     /// Start heading, degrees.
     #[serde(default)]
     pub start_heading_deg: f64,
-    /// Waypoints `(x, y)`, m.
+    /// Waypoints `(x, y)`, m; leave empty when `controls` are given.
+    #[serde(default)]
     pub waypoints: Vec<[f64; 2]>,
+    /// Constant controls instead of waypoints.
+    #[serde(default)]
+    pub controls: Option<ConstantControls>,
+    /// How a step's speed and yaw rate move the robot.
+    #[serde(default)]
+    pub integration: Integration,
     /// How many times the waypoint list is driven.
     #[serde(default = "one")]
     pub laps: usize,
@@ -120,6 +159,20 @@ pub struct RobotSpec {
     /// A waypoint is reached within this distance, m.
     #[serde(default = "default_reach")]
     pub reach: f64,
+}
+
+/// Constant controls (`[robot] controls = { v = 1.0, omega_deg = 7.2, steps = 1000 }`): the
+/// robot drives `steps` steps at speed `v` and yaw rate `omega_deg`, an exact circle (or a
+/// straight line when the yaw rate is 0).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConstantControls {
+    /// Forward speed, m/s.
+    pub v: f64,
+    /// Yaw rate, degrees per second (positive turns left).
+    pub omega_deg: f64,
+    /// Number of steps (motions); the run has `steps + 1` poses.
+    pub steps: usize,
 }
 
 fn one() -> usize {
@@ -239,8 +292,39 @@ impl CameraSpec {
     }
 }
 
-/// The world's true map, for evaluation and plots.
-#[derive(Clone, Debug, Default, PartialEq)]
+/// The range-bearing landmark sensor (`[range_bearing]`): the classic landmark-SLAM sensor.
+///
+/// It sits at the robot origin, facing forward (`robot_from_sensor` is the identity), and
+/// measures the range and the bearing (in the robot frame) of every point landmark (pole
+/// centres and `[[landmarks]]`) whose true range is at most `max_range` and whose true
+/// bearing is within `fov_deg / 2` of straight ahead. Walls and poles do **not** occlude it:
+/// every landmark in range and in the field of view is seen, with its true id. Range and
+/// bearing get independent Gaussian noise; a measurement whose noisy range is not positive is
+/// dropped.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RangeBearingSpec {
+    /// Largest true range observed, m.
+    pub max_range: f64,
+    /// Range noise standard deviation, m.
+    pub sigma_range: f64,
+    /// Bearing noise standard deviation, degrees.
+    pub sigma_bearing_deg: f64,
+    /// Observations every this many steps (step 0 included).
+    pub every: usize,
+    /// Field of view, degrees, centred ahead (default 360: all around).
+    #[serde(default = "full_circle")]
+    pub fov_deg: f64,
+}
+
+fn full_circle() -> f64 {
+    360.0
+}
+
+/// The world's true map, for evaluation and plots; serialized (as `truth_map.json` by
+/// `slam simulate`) with 2-D points as `[x, y]`, 3-D points as `[x, y, z]`, walls and ceiling
+/// lines as `[a, b]`, poles as `[centre, radius]`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TrueMap {
     /// Wall segments `(a, b)`.
     pub walls: Vec<(Vector2<f64>, Vector2<f64>)>,
@@ -252,6 +336,26 @@ pub struct TrueMap {
     pub ceiling_lines: Vec<(Vector3<f64>, Vector3<f64>)>,
     /// Lamp centres.
     pub lamps: Vec<Vector3<f64>>,
+    /// Point landmarks (`[[landmarks]]`), in order; landmark `j` has range-bearing id
+    /// `poles.len() + j`.
+    #[serde(default)]
+    pub landmarks: Vec<Vector2<f64>>,
+}
+
+impl TrueMap {
+    /// The point landmarks a range-bearing sensor observes, with their ids: the pole centres
+    /// first (ids `0..poles.len()`), then the `[[landmarks]]` points.
+    pub fn point_landmarks(&self) -> Vec<KnownLandmark> {
+        let poles = self.poles.iter().map(|(c, _)| *c);
+        poles
+            .chain(self.landmarks.iter().copied())
+            .enumerate()
+            .map(|(id, position)| KnownLandmark {
+                id: id as u64,
+                position,
+            })
+            .collect()
+    }
 }
 
 /// The built-in default world: a 40 m x 15 m office floor (documented in the file itself).
@@ -339,7 +443,26 @@ impl World {
             .iter()
             .map(|l| Vector3::new(l.x, l.y, l.height))
             .collect();
+        map.landmarks = self
+            .landmarks
+            .iter()
+            .map(|l| Vector2::new(l.x, l.y))
+            .collect();
         map
+    }
+
+    /// The `PARAM` values of this world's rb2d log: the step, the odometry noise (yaw rate in
+    /// rad/s) and, with a range-bearing sensor, its noise (bearing in rad) and range.
+    pub fn rb2d_params(&self) -> Rb2dParams {
+        let sensor = self.range_bearing.as_ref();
+        Rb2dParams {
+            dt: self.robot.dt,
+            sigma_v: self.odometry.sigma_v,
+            sigma_w: self.odometry.sigma_omega_deg.to_radians(),
+            sigma_r: sensor.map(|s| s.sigma_range),
+            sigma_b: sensor.map(|s| s.sigma_bearing_deg.to_radians()),
+            max_range: sensor.map(|s| s.max_range),
+        }
     }
 
     /// Checks every number and the consistency of the description.
@@ -390,9 +513,33 @@ impl World {
                 ));
             }
         }
+        for (i, l) in self.landmarks.iter().enumerate() {
+            if !finite(&[l.x, l.y]) {
+                return bad(format!("landmark {i} needs a finite position"));
+            }
+        }
         let r = &self.robot;
-        if r.waypoints.is_empty() || !r.waypoints.iter().all(|p| finite(p)) || !finite(&r.start) {
-            return bad("the robot needs a finite start and at least one finite waypoint".into());
+        if !r.waypoints.iter().all(|p| finite(p)) || !finite(&r.start) {
+            return bad("the robot needs a finite start and finite waypoints".into());
+        }
+        match (&r.controls, r.waypoints.is_empty()) {
+            (None, true) => {
+                return bad("the robot needs at least one waypoint, or constant controls".into());
+            }
+            (Some(_), false) => {
+                return bad(
+                    "the robot takes either waypoints or constant controls, not both".into(),
+                );
+            }
+            (Some(c), true) => {
+                if !finite(&[c.v, c.omega_deg]) || c.steps == 0 || c.steps > super::MAX_STEPS {
+                    return bad(format!(
+                        "robot controls need a finite v and omega_deg and 1 to {} steps",
+                        super::MAX_STEPS
+                    ));
+                }
+            }
+            (None, false) => {}
         }
         let positive = [r.speed, r.max_yaw_rate_deg, r.dt, r.reach];
         if !finite(&positive)
@@ -428,6 +575,19 @@ impl World {
                 && c.every > 0;
             if !ok {
                 return bad("camera: finite mount, positive strip width, every > 0".into());
+            }
+        }
+        if let Some(s) = &self.range_bearing {
+            let values = [s.max_range, s.sigma_range, s.sigma_bearing_deg, s.fov_deg];
+            let ok = finite(&values)
+                && s.max_range > 0.0
+                && s.sigma_range > 0.0
+                && s.sigma_bearing_deg > 0.0
+                && s.fov_deg > 0.0
+                && s.fov_deg <= 360.0
+                && s.every > 0;
+            if !ok {
+                return bad("range_bearing: positive max_range, sigma_range and sigma_bearing_deg, a field of view in (0, 360], every > 0".into());
             }
         }
         Ok(())

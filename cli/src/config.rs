@@ -1,0 +1,234 @@
+//! The `slam run` configuration file (TOML). Every table and key is optional; unknown keys
+//! are errors that name the key.
+//!
+//! ```toml
+//! [data]
+//! spec = "sim"            # sim, world:FILE, carmen:FILE, victoria-park:DIR, mrclam:DIR[:ROBOT], rb2d:FILE
+//! seed = 1                # simulation seed
+//!
+//! [estimator]
+//! type = "ekf"            # the one word that selects the estimator
+//! association = "nearest-neighbour"   # or "jcbb"; further keys: slam_estimators::EkfParams
+//!
+//! [frontend]
+//! walls = true            # laser scans -> wall segments
+//! poles = true            # laser scans -> poles
+//! camera = true           # ceiling images -> lines and lamps
+//! landmarks = true        # observations the data give (range-bearing landmarks, trees)
+//! wall_representation = "mspace"      # or "endpoints" (the naive representation, for comparison)
+//!
+//! [output]
+//! dir = "slam-out"
+//! plots = true
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use slam_estimators::EkfParams;
+use slam_sensors::extract::image::ImageExtractorParams;
+use slam_sensors::extract::{LineExtractorParams, PoleExtractorParams};
+
+use crate::error::{CliError, Result};
+
+/// The whole configuration.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Where the data come from.
+    pub data: DataConfig,
+    /// Which estimator, with its settings.
+    pub estimator: EstimatorConfig,
+    /// How raw sensor data become observations.
+    pub frontend: FrontendConfig,
+    /// What is written where.
+    pub output: OutputConfig,
+}
+
+/// The `[data]` table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DataConfig {
+    /// Data spec (see `slam run --help`).
+    pub spec: String,
+    /// Seed of simulations.
+    pub seed: u64,
+    /// Standard deviations `(x, y, heading)` of the initial pose (m, m, rad). Default 0: the
+    /// map frame is the robot's first pose (or the simulated start, which is known).
+    pub initial_pose_sigma: [f64; 3],
+    /// Process at most this many events (0: all).
+    pub max_events: usize,
+}
+
+impl Default for DataConfig {
+    fn default() -> Self {
+        DataConfig {
+            spec: "sim".into(),
+            seed: 1,
+            initial_pose_sigma: [0.0; 3],
+            max_events: 0,
+        }
+    }
+}
+
+/// The `[estimator]` table: `type` selects the estimator, the other keys are its settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "kebab-case")]
+pub enum EstimatorConfig {
+    /// The M-space EKF ([`slam_estimators::Ekf`]).
+    Ekf(EkfParams),
+}
+
+impl Default for EstimatorConfig {
+    fn default() -> Self {
+        EstimatorConfig::Ekf(EkfParams::default())
+    }
+}
+
+impl EstimatorConfig {
+    /// The estimator's name, as in the config.
+    pub fn name(&self) -> &'static str {
+        match self {
+            EstimatorConfig::Ekf(_) => "ekf",
+        }
+    }
+}
+
+/// How walls are represented in the map.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WallRepresentation {
+    /// M-space walls (`slam_features::Wall`): dimensions 0, 2, 3, 4, shared corners.
+    #[default]
+    Mspace,
+    /// The naive representation: both endpoints in the state from the start, with a large
+    /// variance along the wall where no real end was seen (`slam_examples::EndpointWall`).
+    Endpoints,
+}
+
+/// The `[frontend]` table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FrontendConfig {
+    /// Extract wall segments from laser scans.
+    pub walls: bool,
+    /// Extract poles from laser scans.
+    pub poles: bool,
+    /// Extract lines and lamps from ceiling images.
+    pub camera: bool,
+    /// Use the observations the data give ready-made (range-bearing landmarks, tree
+    /// detections).
+    pub landmarks: bool,
+    /// How walls are represented.
+    pub wall_representation: WallRepresentation,
+    /// Standard deviation along the wall of an endpoint not seen as a real end, for the
+    /// `endpoints` representation, m.
+    pub endpoint_sigma_along_wall: f64,
+    /// Range noise assumed by the extractors, m (default: the simulated laser's, else 0.03).
+    pub sigma_range: Option<f64>,
+    /// Line extractor settings (its `sigma_range` is replaced by the one above).
+    pub lines: LineExtractorParams,
+    /// Pole extractor settings (its `sigma_range` is replaced by the one above).
+    pub pole_extractor: PoleExtractorParams,
+    /// Smallest deviation of a pole observation's range and radius, m.
+    pub pole_sigma_floor: f64,
+    /// Ceiling-image extractor settings.
+    pub image: ImageExtractorParams,
+    /// Distance above the camera at which a one-view ceiling feature is placed, m.
+    pub assumed_ceiling_depth: f64,
+}
+
+impl Default for FrontendConfig {
+    fn default() -> Self {
+        FrontendConfig {
+            walls: true,
+            poles: true,
+            camera: true,
+            landmarks: true,
+            wall_representation: WallRepresentation::Mspace,
+            endpoint_sigma_along_wall: 1.0,
+            sigma_range: None,
+            lines: LineExtractorParams::default(),
+            pole_extractor: PoleExtractorParams::default(),
+            pole_sigma_floor: 0.01,
+            image: ImageExtractorParams::default(),
+            assumed_ceiling_depth: 2.3,
+        }
+    }
+}
+
+/// The `[output]` table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputConfig {
+    /// Output folder.
+    pub dir: PathBuf,
+    /// Draw `map.svg` and `map.png`.
+    pub plots: bool,
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        OutputConfig {
+            dir: PathBuf::from("slam-out"),
+            plots: true,
+        }
+    }
+}
+
+impl Config {
+    /// Parses a TOML configuration; unknown keys are errors naming the key.
+    ///
+    /// ```ignore
+    /// let config = Config::from_toml("[estimator]\ntype = \"ekf\"\n", "inline").unwrap();
+    /// ```
+    pub fn from_toml(text: &str, origin: &str) -> Result<Self> {
+        toml::from_str(text).map_err(|e| CliError::Usage(format!("config {origin}: {e}")))
+    }
+
+    /// Reads a TOML configuration file.
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| CliError::Output {
+            path: path.display().to_string(),
+            message: format!("cannot read the config: {e}"),
+        })?;
+        Self::from_toml(&text, &path.display().to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_config_is_the_default() {
+        assert_eq!(Config::from_toml("", "t").unwrap(), Config::default());
+    }
+
+    #[test]
+    fn one_word_selects_the_estimator_and_its_keys() {
+        let config = Config::from_toml(
+            "[estimator]\ntype = \"ekf\"\nassociation = \"jcbb\"\nconfirm_after = 2\n",
+            "t",
+        )
+        .unwrap();
+        let EstimatorConfig::Ekf(params) = config.estimator;
+        assert_eq!(params.confirm_after, 2);
+        assert_eq!(params.association, slam_estimators::Association::Jcbb);
+    }
+
+    #[test]
+    fn unknown_keys_are_named() {
+        for (text, key) in [
+            ("[data]\nspeck = \"sim\"\n", "speck"),
+            ("[estimator]\ntype = \"ekf\"\ngate = 0.9\n", "gate"),
+            ("[frontend]\nwals = true\n", "wals"),
+            ("[frontend.lines]\nsplit = 1\n", "split"),
+            ("[outputs]\n", "outputs"),
+            ("[estimator]\ntype = \"kalman\"\n", "kalman"),
+        ] {
+            let error = Config::from_toml(text, "t").unwrap_err().to_string();
+            assert!(error.contains(key), "{text}: {error}");
+        }
+    }
+}

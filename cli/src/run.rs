@@ -1,0 +1,268 @@
+//! `slam run [CONFIG.toml] [--data SPEC] [--out DIR] [--seed N] [--quiet]`: runs the
+//! configured estimator on simulated or real data and writes the standard outputs.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use slam_core::nalgebra::Vector3;
+
+use crate::config::Config;
+use crate::data::{DataSpec, Loaded};
+use crate::error::{CliError, Result};
+use crate::eval::{Alignment, ErrorStats, umeyama};
+use crate::frontend::FrontendCounts;
+use crate::outputs::{
+    ChiSquareSummary, FigureContext, MapError, chi_square_summary, feature_counts,
+    map_error_against_landmarks, map_error_against_truth, map_figure, map_json, pose_nees,
+    trajectory_errors, write_text, write_trajectory,
+};
+use crate::pipeline::{self, RunResult, UpdateTotals, progress_bar};
+
+/// Arguments of `slam run`.
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
+    /// Configuration file (TOML, see `slam run --help`); every setting has a default.
+    pub config: Option<PathBuf>,
+    /// Data: sim (the built-in world), world:FILE, carmen:FILE, victoria-park:DIR,
+    /// mrclam:DIR[:ROBOT], rb2d:FILE. Overrides the config's `[data] spec`.
+    #[arg(long)]
+    pub data: Option<String>,
+    /// Output folder. Overrides the config's `[output] dir` (default `slam-out`).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Simulation seed. Overrides the config's `[data] seed`.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// No progress bar and only the summary line.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Everything in `metrics.json`.
+#[derive(Serialize)]
+struct Metrics {
+    data: String,
+    estimator: &'static str,
+    seed: u64,
+    /// Time steps with an estimate.
+    steps: usize,
+    events: usize,
+    wall_time_s: f64,
+    /// Mean wall time per time step, ms.
+    time_per_step_ms: f64,
+    ate_rmse_m: Option<f64>,
+    ate_rmse_unaligned_m: Option<f64>,
+    ate_against: Option<&'static str>,
+    ate: Option<ErrorStats>,
+    map_error_m: Option<f64>,
+    map_error: Option<MapError>,
+    /// Robot pose NEES (3 dof) at every step with a true pose.
+    nees: Option<ChiSquareSummary>,
+    /// NIS of every paired observation.
+    nis: ChiSquareSummary,
+    features: std::collections::BTreeMap<String, std::collections::BTreeMap<usize, usize>>,
+    updates: UpdateTotals,
+    frontend: FrontendCounts,
+    config: Config,
+}
+
+/// Runs `slam run`.
+pub fn run(args: &RunArgs) -> Result<()> {
+    let mut config = match &args.config {
+        Some(path) => Config::from_file(path)?,
+        None => Config::default(),
+    };
+    if let Some(data) = &args.data {
+        config.data.spec = data.clone();
+    }
+    if let Some(out) = &args.out {
+        config.output.dir = out.clone();
+    }
+    if let Some(seed) = args.seed {
+        config.data.seed = seed;
+    }
+    let summary = run_config(&config, args.quiet)?;
+    println!("{summary}");
+    Ok(())
+}
+
+/// Runs a configuration and writes its outputs; returns a one-line summary.
+pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
+    let spec: DataSpec = config.data.spec.parse()?;
+    let loaded = spec.load(config.data.seed)?;
+    let sigma_range = sigma_range(config, &loaded)?;
+    let Loaded {
+        dataset,
+        truth: truth_map,
+        ..
+    } = loaded;
+    let name = dataset.name.clone();
+    let landmarks = dataset.landmarks.clone();
+    let bar = progress_bar(dataset.events.len(), quiet);
+    let result = pipeline::run(config, dataset, sigma_range, &bar)?;
+
+    let estimator = result.estimator.as_ref();
+    let trajectory = trajectory_errors(&result)?;
+    let has_truth_poses = result
+        .truth
+        .iter()
+        .any(|t| t.2 == slam_sensors::TruthKind::True);
+    let map_error = match (&truth_map, landmarks.is_empty()) {
+        (Some(truth), _) => Some(map_error_against_truth(estimator, truth)),
+        (None, false) => Some(map_error_against_landmarks(
+            estimator,
+            &landmarks,
+            !has_truth_poses,
+        )?),
+        (None, true) => None,
+    };
+    let nees_series = pose_nees(&result);
+    let nees: Vec<(f64, usize)> = nees_series.into_iter().map(|(_, n)| (n, 3)).collect();
+    let steps = result.estimates.len();
+    let metrics = Metrics {
+        data: name.clone(),
+        estimator: config.estimator.name(),
+        seed: config.data.seed,
+        steps,
+        events: result.events,
+        wall_time_s: result.wall_time_s,
+        time_per_step_ms: 1e3 * result.wall_time_s / steps.max(1) as f64,
+        ate_rmse_m: trajectory.as_ref().map(|t| t.ate_rmse_m),
+        ate_rmse_unaligned_m: trajectory.as_ref().map(|t| t.ate_rmse_unaligned_m),
+        ate_against: trajectory.as_ref().map(|t| t.against),
+        ate: trajectory.as_ref().map(|t| t.ate),
+        map_error_m: map_error.as_ref().map(|m| m.rms_m),
+        map_error,
+        nees: if nees.is_empty() {
+            None
+        } else {
+            Some(chi_square_summary(&nees)?)
+        },
+        nis: chi_square_summary(&result.nis)?,
+        features: feature_counts(estimator),
+        updates: result.updates,
+        frontend: result.frontend,
+        config: config.clone(),
+    };
+
+    let dir = &config.output.dir;
+    std::fs::create_dir_all(dir).map_err(|e| CliError::Output {
+        path: dir.display().to_string(),
+        message: e.to_string(),
+    })?;
+    write_trajectory(dir, &result)?;
+    write_text(dir, "map.json", &map_json(estimator)?)?;
+    let json = serde_json::to_string_pretty(&metrics)
+        .map_err(|e| CliError::Usage(format!("serializing metrics: {e}")))?;
+    write_text(dir, "metrics.json", &json)?;
+    if config.output.plots {
+        draw(
+            dir,
+            &result,
+            &name,
+            truth_map.as_ref(),
+            &landmarks,
+            !has_truth_poses,
+        )?;
+    }
+    let number = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
+    Ok(format!(
+        "{name}: {} steps in {:.1} s ({:.3} ms/step); ATE {} m ({}); map error {} m; pose NEES \
+         mean {}; outputs in {}",
+        steps,
+        result.wall_time_s,
+        metrics.time_per_step_ms,
+        number(metrics.ate_rmse_m),
+        metrics.ate_against.unwrap_or("no truth"),
+        number(metrics.map_error_m),
+        number(metrics.nees.as_ref().map(|n| n.mean_per_dof * 3.0)),
+        dir.display()
+    ))
+}
+
+/// The range noise the front-end assumes: the config's, else the simulated laser's, else
+/// 3 cm.
+fn sigma_range(config: &Config, loaded: &Loaded) -> Result<f64> {
+    let sigma = config
+        .frontend
+        .sigma_range
+        .or(loaded.laser_sigma_range)
+        .unwrap_or(0.03);
+    if sigma.is_finite() && sigma > 0.0 {
+        Ok(sigma)
+    } else {
+        Err(CliError::Usage(format!(
+            "[frontend] sigma_range must be positive, got {sigma}"
+        )))
+    }
+}
+
+/// How to bring the estimate into the frame the figure's references use: onto the GPS fixes
+/// (nearest estimate within 0.5 s) when there are some, onto known landmarks when the run has
+/// no true poses, else none.
+fn estimate_alignment(
+    result: &RunResult,
+    landmarks: &[slam_sensors::events::KnownLandmark],
+    align_landmarks: bool,
+) -> Option<Alignment> {
+    let as3 = |p: slam_core::nalgebra::Vector2<f64>| Vector3::new(p.x, p.y, 0.0);
+    if result.gps.len() >= 3 {
+        let mut from = Vec::new();
+        let mut to = Vec::new();
+        for (time, fix) in &result.gps {
+            let nearest = result
+                .estimates
+                .partition_point(|r| r.time < *time)
+                .min(result.estimates.len().saturating_sub(1));
+            let record = result.estimates.get(nearest)?;
+            if (record.time - time).abs() <= 0.5 {
+                from.push(as3(record.pose.translation()));
+                to.push(as3(*fix));
+            }
+        }
+        return umeyama(&from, &to, false).ok();
+    }
+    if align_landmarks && !landmarks.is_empty() {
+        let estimator = result.estimator.as_ref();
+        let known: std::collections::BTreeMap<u64, _> =
+            landmarks.iter().map(|l| (l.id, l.position)).collect();
+        let (mut from, mut to) = (Vec::new(), Vec::new());
+        for (id, feature) in estimator.map().iter() {
+            let Some(truth) = estimator.landmark_id(id).and_then(|l| known.get(&l)) else {
+                continue;
+            };
+            if let Some(slam_core::CoordBlock::Point3(p)) = feature.coordinates().blocks().first() {
+                from.push(as3(p.xy()));
+                to.push(as3(*truth));
+            }
+        }
+        return umeyama(&from, &to, false).ok();
+    }
+    None
+}
+
+fn draw(
+    dir: &Path,
+    result: &RunResult,
+    name: &str,
+    truth_map: Option<&slam_sensors::sim::TrueMap>,
+    landmarks: &[slam_sensors::events::KnownLandmark],
+    align_landmarks: bool,
+) -> Result<()> {
+    let estimate_to_truth = estimate_alignment(result, landmarks, align_landmarks);
+    let aligned = if estimate_to_truth.is_some() {
+        " (estimate aligned onto the references)"
+    } else {
+        ""
+    };
+    let context = FigureContext {
+        title: format!("{name}: {} map and path{aligned}", result.estimator.name()),
+        truth_map,
+        landmarks,
+        estimate_to_truth,
+    };
+    let figure = map_figure(result, &context);
+    figure.save(&dir.join("map.svg"))?;
+    figure.save(&dir.join("map.png"))?;
+    Ok(())
+}

@@ -476,6 +476,53 @@ pub fn trajectory_errors(result: &RunResult) -> Result<Option<TrajectoryErrors>>
     }))
 }
 
+/// `estimates.csv`: every estimated pose with its covariance, and the true pose and the
+/// NEES where the data have true poses.
+pub fn estimates_csv(result: &RunResult) -> String {
+    use std::fmt::Write as _;
+    let truth: BTreeMap<u64, Pose2> = result
+        .truth
+        .iter()
+        .filter(|(_, _, kind)| *kind == TruthKind::True)
+        .map(|(t, p, _)| (t.to_bits(), *p))
+        .collect();
+    let nees: BTreeMap<u64, f64> = pose_nees(result)
+        .into_iter()
+        .map(|(t, n)| (t.to_bits(), n))
+        .collect();
+    let mut text = String::from(
+        "time,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta,\
+         true_x,true_y,true_theta,nees\n",
+    );
+    for r in &result.estimates {
+        let c = &r.covariance;
+        let _ = write!(
+            text,
+            "{},{},{},{},{:e},{:e},{:e},{:e},{:e},{:e}",
+            r.time,
+            r.pose.x,
+            r.pose.y,
+            r.pose.theta,
+            c[(0, 0)],
+            c[(0, 1)],
+            c[(0, 2)],
+            c[(1, 1)],
+            c[(1, 2)],
+            c[(2, 2)]
+        );
+        match truth.get(&r.time.to_bits()) {
+            Some(t) => {
+                let n = nees
+                    .get(&r.time.to_bits())
+                    .map_or(String::new(), |n| n.to_string());
+                let _ = writeln!(text, ",{},{},{},{n}", t.x, t.y, t.theta);
+            }
+            None => text.push_str(",,,,\n"),
+        }
+    }
+    text
+}
+
 /// Writes the estimated trajectory in TUM format.
 pub fn write_trajectory(dir: &Path, result: &RunResult) -> Result<()> {
     write_tum(&dir.join("trajectory.tum"), &trajectory(result))?;

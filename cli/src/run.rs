@@ -12,7 +12,7 @@ use crate::error::{CliError, Result};
 use crate::eval::{Alignment, ErrorStats, umeyama};
 use crate::frontend::FrontendCounts;
 use crate::outputs::{
-    ChiSquareSummary, FigureContext, MapError, chi_square_summary, feature_counts,
+    ChiSquareSummary, FigureContext, MapError, chi_square_summary, estimates_csv, feature_counts,
     map_error_against_landmarks, map_error_against_truth, map_figure, map_json, pose_nees,
     trajectory_errors, write_text, write_trajectory,
 };
@@ -152,6 +152,7 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
     })?;
     write_trajectory(dir, &result)?;
     write_text(dir, "map.json", &map_json(estimator)?)?;
+    write_text(dir, "estimates.csv", &estimates_csv(&result))?;
     let json = serde_json::to_string_pretty(&metrics)
         .map_err(|e| CliError::Usage(format!("serializing metrics: {e}")))?;
     write_text(dir, "metrics.json", &json)?;

@@ -159,6 +159,21 @@ impl StateCovariance {
         r: &DMatrix<f64>,
         eta: &DVector<f64>,
     ) -> Result<DVector<f64>> {
+        let prepared = self.prepare_update(indices, h, r, eta)?;
+        let dx = prepared.dx.clone();
+        self.commit(prepared);
+        Ok(dx)
+    }
+
+    /// The state change and gain of [`StateCovariance::update`], without touching the
+    /// covariance: [`StateCovariance::commit`] applies it once the state change is accepted.
+    pub(crate) fn prepare_update(
+        &self,
+        indices: &[usize],
+        h: &DMatrix<f64>,
+        r: &DMatrix<f64>,
+        eta: &DVector<f64>,
+    ) -> Result<PreparedUpdate> {
         let n = self.dim();
         let m = h.nrows();
         if h.ncols() != indices.len() || r.shape() != (m, m) || eta.len() != m {
@@ -169,7 +184,10 @@ impl StateCovariance {
             });
         }
         if m == 0 {
-            return Ok(DVector::zeros(n));
+            return Ok(PreparedUpdate {
+                w: Mat::zeros(n, 0),
+                dx: DVector::zeros(n),
+            });
         }
         let c_cols = self.columns(indices);
         let h_t = to_faer(&h.transpose());
@@ -179,7 +197,6 @@ impl StateCovariance {
         let s = h * pht_t + r;
         let s = 0.5 * (&s + s.transpose());
         let cholesky = s
-            .clone()
             .cholesky()
             .ok_or_else(|| Error::Singular("innovation covariance S of an EKF update".into()))?;
         let l_inv = cholesky
@@ -197,24 +214,31 @@ impl StateCovariance {
         );
         let whitened = &l_inv * eta;
         let mut dx = DVector::zeros(n);
-        for i in 0..n {
-            dx[i] = -(0..m).map(|k| w[(i, k)] * whitened[k]).sum::<f64>();
+        for (i, value) in dx.iter_mut().enumerate() {
+            *value = -(0..m).map(|k| w[(i, k)] * whitened[k]).sum::<f64>();
+        }
+        if !dx.iter().all(|v| v.is_finite()) {
+            return Err(Error::NonFinite("EKF state change".into()));
+        }
+        Ok(PreparedUpdate { w, dx })
+    }
+
+    /// Applies a prepared update's covariance downdate `C -= W W^T`.
+    pub(crate) fn commit(&mut self, prepared: PreparedUpdate) {
+        if prepared.w.ncols() == 0 || prepared.w.nrows() != self.dim() {
+            return;
         }
         triangular::matmul(
             &mut self.lower,
             BlockStructure::TriangularLower,
             Accum::Add,
-            &w,
+            &prepared.w,
             BlockStructure::Rectangular,
-            w.transpose(),
+            prepared.w.transpose(),
             BlockStructure::Rectangular,
             -1.0,
             Par::Seq,
         );
-        if !dx.iter().all(|v| v.is_finite()) {
-            return Err(Error::NonFinite("EKF state change".into()));
-        }
-        Ok(dx)
     }
 
     /// Replaces the rows `old` by `t.nrows()` new rows `t dx_old` (a linear
@@ -313,6 +337,15 @@ impl StateCovariance {
         let n = self.dim();
         DMatrix::from_fn(n, n, |i, j| self.get(i, j))
     }
+}
+
+/// An EKF update computed but not yet applied to the covariance.
+#[derive(Debug)]
+pub(crate) struct PreparedUpdate {
+    /// `W = C H^T L^{-T}` (`dim x m`).
+    w: Mat<f64>,
+    /// The state change `dx` (eq. 31).
+    pub(crate) dx: DVector<f64>,
 }
 
 /// A faer copy of a small nalgebra matrix.

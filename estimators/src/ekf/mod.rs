@@ -151,6 +151,8 @@ impl EkfParams {
 /// One earlier measurement of a feature, kept for triangulation.
 #[derive(Debug)]
 struct View<P> {
+    /// The pose covariance when the view was taken.
+    pose_covariance: DMatrix<f64>,
     world_from_sensor: Pose3,
     world_from_robot: P,
     robot_from_sensor: Pose3,
@@ -263,6 +265,8 @@ pub struct Ekf<P: RobotPose> {
     gates: HashMap<(usize, u64), f64>,
     step: usize,
     corners_joined: usize,
+    /// Earlier views of features that grew by triangulation in this step, to update with.
+    view_batch: Vec<Pairing>,
 }
 
 /// What the filter decided for one observation.
@@ -304,6 +308,7 @@ impl<P: RobotPose> Ekf<P> {
             gates: HashMap::new(),
             step: 0,
             corners_joined: 0,
+            view_batch: Vec::new(),
         })
     }
 

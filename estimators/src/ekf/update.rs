@@ -5,7 +5,7 @@ use std::collections::BTreeSet;
 
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{
-    Error, Feature, FeatureId, MapToSensor, Observation, Result, RobotPose, RowOwner, UpdateReport,
+    Error, FeatureId, MapToSensor, Observation, Result, RobotPose, RowOwner, UpdateReport,
     linearize,
 };
 
@@ -79,17 +79,13 @@ impl<P: RobotPose> Ekf<P> {
                 batch.push(pairing);
             }
         }
+        batch.append(&mut self.view_batch);
         if self.params.observability_constraint {
             for pairing in &mut batch {
                 pairing.h = project_out(&pairing.h, &self.cov.generators(&pairing.indices));
             }
         }
-        if !batch.is_empty() {
-            let pairings: Vec<&Pairing> = batch.iter().collect();
-            let (indices, h, r, eta) = stack(&pairings);
-            let dx = self.cov.update(&indices, &h, &r, &eta)?;
-            self.apply_state_change(&dx)?;
-        }
+        report.rejected += self.update_batch(batch)?;
         for &(index, id) in &seen {
             self.extend(id, &observations[index])?;
         }
@@ -103,17 +99,81 @@ impl<P: RobotPose> Ekf<P> {
         Ok(report)
     }
 
+    /// One batch update (eqs. 28-32, 24). A state change that some feature cannot take (it
+    /// would turn a wall or line around: a wrong association or a step far outside the
+    /// linear range) is not applied; the pairings of those features are dropped and the
+    /// rest is updated again. Returns the number of pairings dropped.
+    fn update_batch(&mut self, mut batch: Vec<Pairing>) -> Result<usize> {
+        let mut dropped = 0;
+        while !batch.is_empty() {
+            let pairings: Vec<&Pairing> = batch.iter().collect();
+            let (indices, h, r, eta) = stack(&pairings);
+            let prepared = self.cov.prepare_update(&indices, &h, &r, &eta)?;
+            // `apply_state_change` is all or nothing: on error the state is unchanged.
+            if self.apply_state_change(&prepared.dx).is_ok() {
+                self.cov.commit(prepared);
+                break;
+            }
+            let refused = self.refusing_features(&prepared.dx)?;
+            let before = batch.len();
+            batch.retain(|p| !refused.contains(&p.feature));
+            if batch.len() == before {
+                // The refusing features were not measured: the step moves them through
+                // correlations only. Nothing safe is left to update.
+                dropped += batch.len();
+                break;
+            }
+            dropped += before - batch.len();
+        }
+        Ok(dropped)
+    }
+
+    /// The features that refuse the perturbation `dx` would give them (the slow path, after
+    /// a refused update).
+    fn refusing_features(&self, dx: &DVector<f64>) -> Result<BTreeSet<FeatureId>> {
+        let mut refused = BTreeSet::new();
+        for (owner, rows) in &self.rows {
+            if let RowOwner::Feature(id) = owner {
+                let owned = DVector::from_fn(rows.len(), |k, _| dx[rows[k]]);
+                let mut candidate = slam_core::dyn_clone::clone_box(self.map.get(*id)?);
+                if candidate.apply_perturbation(&owned).is_err() {
+                    refused.insert(*id);
+                }
+            }
+        }
+        if refused.is_empty() {
+            let perturbations: Vec<(RowOwner, DVector<f64>)> = self
+                .rows
+                .iter()
+                .map(|(owner, rows)| (*owner, DVector::from_fn(rows.len(), |k, _| dx[rows[k]])))
+                .collect();
+            let mut map = self.map.clone();
+            if map.apply(&perturbations).is_err() {
+                for (owner, _) in &perturbations {
+                    if let RowOwner::Shared(id) = owner {
+                        for (member, _) in &self.map.shared_block(*id)?.members {
+                            refused.insert(*member);
+                        }
+                    }
+                }
+            }
+        }
+        Ok(refused)
+    }
+
     /// `x += dx`: the pose by its parameters, every feature by `x_f += B~ dx_p` (eq. 24) and
     /// every shared block by its identity rows.
+    /// All or nothing: on error the state is unchanged.
     fn apply_state_change(&mut self, dx: &DVector<f64>) -> Result<()> {
         let d = P::DIM;
-        self.pose = add_to_pose(&self.pose, &dx.as_slice()[..d])?;
+        let pose = add_to_pose(&self.pose, &dx.as_slice()[..d])?;
         let perturbations: Vec<(RowOwner, DVector<f64>)> = self
             .rows
             .iter()
             .map(|(owner, rows)| (*owner, DVector::from_fn(rows.len(), |k, _| dx[rows[k]])))
             .collect();
         self.map.apply(&perturbations)?;
+        self.pose = pose;
         let ids: Vec<FeatureId> = self.tracks.keys().copied().collect();
         for id in ids {
             self.refresh_bbox(id);
@@ -164,6 +224,7 @@ impl<P: RobotPose> Ekf<P> {
             .revealed_subspaces_dyn(feature, &x_o)
             .unwrap_or_default();
         let can_grow = !feature.growth_options().is_empty();
+        let pose_covariance = slam_core::Estimator::pose_covariance(self);
         let step = self.step;
         let max_views = self.params.max_views;
         let track = self.tracks.entry(id).or_default();
@@ -178,6 +239,7 @@ impl<P: RobotPose> Ekf<P> {
                 track.views.remove(1);
             }
             track.views.push(View {
+                pose_covariance: pose_covariance.clone(),
                 world_from_sensor,
                 world_from_robot: self.pose,
                 robot_from_sensor: observation.robot_from_sensor,
@@ -217,18 +279,12 @@ impl<P: RobotPose> Ekf<P> {
             priors.push(prior);
         }
         let mut new_dim = self.map.get(id)?.mspace_dim();
-        if new_dim == old_dim
-            && let Some(information) = self.triangulate(id, observation)?
-        {
+        let mut triangulated = false;
+        if new_dim == old_dim && self.triangulate(id, observation)? {
             new_dim = self.map.get(id)?.mspace_dim();
             let added = new_dim - old_dim;
-            let regularized =
-                information + DMatrix::identity(added, added) / self.params.new_row_variance;
-            priors.push(
-                regularized
-                    .try_inverse()
-                    .ok_or_else(|| Error::Singular("triangulation prior".into()))?,
-            );
+            priors.push(DMatrix::identity(added, added) * self.params.new_row_variance);
+            triangulated = true;
         }
         if new_dim == old_dim {
             return Ok(false);
@@ -256,6 +312,10 @@ impl<P: RobotPose> Ekf<P> {
             .entry(RowOwner::Feature(id))
             .or_default()
             .extend(range);
+        if triangulated {
+            let views = self.view_pairings(id, old_dim)?;
+            self.view_batch.extend(views);
+        }
         if self.map.get(id)?.growth_options().is_empty()
             && let Some(track) = self.tracks.get_mut(&id)
         {
@@ -269,20 +329,16 @@ impl<P: RobotPose> Ekf<P> {
     /// does not have. The new coordinates keep the already-estimated directions:
     /// `x_new = x_tri - B~_new P_old B_new (x_tri - x_old)`, `P_old` selecting the old rows.
     /// Returns the information of the other views about the new rows (their prior).
-    fn triangulate(
-        &mut self,
-        id: FeatureId,
-        observation: &Observation,
-    ) -> Result<Option<DMatrix<f64>>> {
+    fn triangulate(&mut self, id: FeatureId, observation: &Observation) -> Result<bool> {
         let Some(track) = self.tracks.get(&id) else {
-            return Ok(None);
+            return Ok(false);
         };
         let feature = self.map.get(id)?;
         let options = feature.growth_options();
         let blocks = feature.coordinates().num_blocks();
         if options.is_empty() || track.views.len() < 2 || (0..blocks).any(|k| feature.is_shared(k))
         {
-            return Ok(None);
+            return Ok(false);
         }
         // The current observation is the last view; triangulate it with the others.
         let (current, others) = track
@@ -297,7 +353,7 @@ impl<P: RobotPose> Ekf<P> {
             .measurement
             .triangulate_dyn(&current.world_from_sensor, &other_views)
         else {
-            return Ok(None);
+            return Ok(false);
         };
         let reveals: Vec<&'static str> = triangulated
             .reveals
@@ -306,7 +362,7 @@ impl<P: RobotPose> Ekf<P> {
             .filter(|name| options.iter().any(|s| s.name == *name))
             .collect();
         if reveals.is_empty() {
-            return Ok(None);
+            return Ok(false);
         }
         let old_dim = feature.mspace_dim();
         let mut grown = slam_core::dyn_clone::clone_box(feature);
@@ -330,28 +386,35 @@ impl<P: RobotPose> Ekf<P> {
         // Views that place the feature where it cannot go (a line turned around) are
         // ignored: no growth this time.
         if grown.set_coordinates(coordinates).is_err() {
-            return Ok(None);
+            return Ok(false);
         }
-        let new_dim = grown.mspace_dim();
-        let information = self.views_information(grown.as_ref(), others, old_dim, new_dim);
         self.map.replace(id, grown)?;
-        Ok(Some(information))
+        Ok(true)
     }
 
-    /// `sum_v J_v^T S_v^-1 J_v` over the views, `J_v` the Jacobian of view `v`'s innovation
-    /// with respect to the new rows `old_dim..new_dim` and `S_v` its noise plus the current
-    /// pose uncertainty (a stand-in for that view's own pose uncertainty).
-    fn views_information(
-        &self,
-        feature: &dyn Feature,
-        views: &[View<P>],
-        old_dim: usize,
-        new_dim: usize,
-    ) -> DMatrix<f64> {
-        let added = new_dim - old_dim;
-        let c_rr = slam_core::Estimator::pose_covariance(self);
-        let mut information = DMatrix::zeros(added, added);
-        for view in views {
+    /// The earlier views of a feature that grew by triangulation, as measurements of its new
+    /// rows `old_dim..` and of the **current** pose: a view taken at `x_v` is treated as taken
+    /// from the current pose moved by the estimated relative motion, with that motion's
+    /// uncertainty (the growth of the pose covariance since the view) added to its noise.
+    /// The views thus correlate the new rows with the pose, as the EKF needs, instead of
+    /// entering as an independent prior (which makes the filter overconfident).
+    fn view_pairings(&self, id: FeatureId, old_dim: usize) -> Result<Vec<Pairing>> {
+        let Some(track) = self.tracks.get(&id) else {
+            return Ok(Vec::new());
+        };
+        let Some((_, others)) = track.views.split_last() else {
+            return Ok(Vec::new());
+        };
+        let feature = self.map.get(id)?;
+        let rows = self
+            .rows
+            .get(&RowOwner::Feature(id))
+            .map(|r| r[old_dim..].to_vec())
+            .unwrap_or_default();
+        let added = rows.len();
+        let c_now = slam_core::Estimator::pose_covariance(self);
+        let mut pairings = Vec::new();
+        for view in others {
             let Ok(lin) = linearize(
                 view.measurement.as_ref(),
                 feature,
@@ -360,13 +423,26 @@ impl<P: RobotPose> Ekf<P> {
             ) else {
                 continue;
             };
-            let j_new = lin.d_eta_d_own.columns(old_dim, added).into_owned();
-            let s = &lin.cov_eta + &lin.d_eta_d_robot * &c_rr * lin.d_eta_d_robot.transpose();
-            if let Some(s_inv) = s.try_inverse() {
-                information += j_new.transpose() * s_inv * j_new;
-            }
+            let relative = psd_part(&(&c_now - &view.pose_covariance));
+            let cov_eta =
+                &lin.cov_eta + &lin.d_eta_d_robot * relative * lin.d_eta_d_robot.transpose();
+            let m = lin.eta.len();
+            let mut h = DMatrix::zeros(m, P::DIM + added);
+            h.view_mut((0, 0), (m, P::DIM))
+                .copy_from(&lin.d_eta_d_robot);
+            h.view_mut((0, P::DIM), (m, added))
+                .copy_from(&lin.d_eta_d_own.columns(old_dim, added));
+            let mut indices: Vec<usize> = (0..P::DIM).collect();
+            indices.extend_from_slice(&rows);
+            pairings.push(Pairing {
+                feature: id,
+                indices,
+                h,
+                eta: lin.eta,
+                cov_eta,
+            });
         }
-        0.5 * (&information + information.transpose())
+        Ok(pairings)
     }
 
     /// Applies the measurement's change outside the M-space (a wall's extent).
@@ -618,4 +694,12 @@ fn distance(a: &slam_core::CoordBlock, b: &slam_core::CoordBlock) -> f64 {
         .map(|(x, y)| (x - y).powi(2))
         .sum::<f64>()
         .sqrt()
+}
+
+/// The positive semi-definite part of a symmetric matrix (negative eigenvalues set to 0).
+fn psd_part(m: &DMatrix<f64>) -> DMatrix<f64> {
+    let symmetric = 0.5 * (m + m.transpose());
+    let eigen = symmetric.symmetric_eigen();
+    let clipped = eigen.eigenvalues.map(|v| v.max(0.0));
+    &eigen.eigenvectors * DMatrix::from_diagonal(&clipped) * eigen.eigenvectors.transpose()
 }

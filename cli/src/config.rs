@@ -95,7 +95,7 @@ impl EstimatorConfig {
 }
 
 /// How walls are represented in the map.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum WallRepresentation {
     /// M-space walls (`slam_features::Wall`): dimensions 0, 2, 3, 4, shared corners.

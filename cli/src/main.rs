@@ -2,6 +2,7 @@
 
 mod camera;
 mod config;
+mod consistency;
 mod data;
 mod error;
 mod eval;
@@ -32,6 +33,9 @@ enum Command {
     Extract(extract::ExtractArgs),
     /// Run the ceiling-image front-end on one image and draw what it finds.
     Camera(camera::CameraArgs),
+    /// Measure the estimator's consistency (average pose NEES) over many seeded simulated
+    /// runs, M-space walls against naive endpoint walls.
+    Consistency(consistency::ConsistencyArgs),
     /// Write a simulated run as files other tools read (rb2d, CARMEN, TUM ground truth).
     Simulate(simulate::SimulateArgs),
     /// Compare an estimated trajectory with ground truth (ATE, RPE).
@@ -45,6 +49,7 @@ fn main() {
         Command::Extract(args) => extract::run(args),
         Command::Camera(args) => camera::run(args),
         Command::Simulate(args) => simulate::run(args),
+        Command::Consistency(args) => consistency::run(args),
         Command::Eval(args) => eval::run(args),
     };
     if let Err(error) = result {

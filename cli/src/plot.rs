@@ -383,3 +383,147 @@ fn font_available() -> bool {
         })
     })
 }
+
+/// One line of a [`LineChart`].
+#[derive(Clone, Debug)]
+pub struct Series {
+    /// Legend text.
+    pub label: String,
+    /// Colour.
+    pub colour: Colour,
+    /// `(x, y)` points.
+    pub points: Vec<(f64, f64)>,
+}
+
+/// A time-series chart with an optional shaded band (a confidence interval), drawn on a
+/// logarithmic y axis.
+#[derive(Clone, Debug)]
+pub struct LineChart {
+    /// Title.
+    pub title: String,
+    /// X axis label.
+    pub x_label: String,
+    /// Y axis label.
+    pub y_label: String,
+    /// The lines.
+    pub series: Vec<Series>,
+    /// A horizontal band `(low, high)` drawn behind the lines.
+    pub band: Option<(f64, f64)>,
+}
+
+impl LineChart {
+    /// Writes the chart as PNG or SVG (by extension), completely or not at all.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let error = |message: String| CliError::Output {
+            path: path.display().to_string(),
+            message,
+        };
+        let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        let temporary = path.with_extension(format!("partial.{extension}"));
+        let size = (1400, 700);
+        let result = match extension {
+            "svg" => self.draw(&SVGBackend::new(&temporary, size).into_drawing_area()),
+            "png" => self.draw(&BitMapBackend::new(&temporary, size).into_drawing_area()),
+            other => {
+                return Err(error(format!(
+                    "unknown image format `{other}` (use .png or .svg)"
+                )));
+            }
+        };
+        if let Err(message) = result {
+            let _ = std::fs::remove_file(&temporary);
+            return Err(error(message));
+        }
+        std::fs::rename(&temporary, path).map_err(|e| error(e.to_string()))
+    }
+
+    fn draw<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, plotters::coord::Shift>,
+    ) -> std::result::Result<(), String> {
+        let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+        let text = font_available();
+        root.fill(&WHITE).map_err(e)?;
+        let points = self.series.iter().flat_map(|s| s.points.iter());
+        let (mut x0, mut x1, mut y0, mut y1) = (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        );
+        for &(x, y) in points {
+            if x.is_finite() && y.is_finite() && y > 0.0 {
+                x0 = x0.min(x);
+                x1 = x1.max(x);
+                y0 = y0.min(y);
+                y1 = y1.max(y);
+            }
+        }
+        if let Some((lo, hi)) = self.band {
+            y0 = y0.min(lo);
+            y1 = y1.max(hi);
+        }
+        if !(x0 < x1 && y0 < y1) {
+            x0 = 0.0;
+            x1 = 1.0;
+            y0 = 0.1;
+            y1 = 10.0;
+        }
+        let mut builder = ChartBuilder::on(root);
+        builder
+            .margin(15)
+            .x_label_area_size(if text { 40 } else { 0 })
+            .y_label_area_size(if text { 60 } else { 0 });
+        if text {
+            builder.caption(&self.title, ("sans-serif", 20));
+        }
+        let mut chart = builder
+            .build_cartesian_2d(x0..x1, (y0 * 0.8..y1 * 1.25).log_scale())
+            .map_err(e)?;
+        let mut mesh = chart.configure_mesh();
+        mesh.light_line_style(RGBColor(235, 235, 235));
+        if text {
+            mesh.x_desc(self.x_label.as_str())
+                .y_desc(self.y_label.as_str());
+        } else {
+            mesh.disable_x_axis().disable_y_axis();
+        }
+        mesh.draw().map_err(e)?;
+        if let Some((lo, hi)) = self.band {
+            chart
+                .draw_series(std::iter::once(Rectangle::new(
+                    [(x0, lo), (x1, hi)],
+                    RGBColor(200, 230, 200).filled(),
+                )))
+                .map_err(e)?;
+        }
+        for series in &self.series {
+            let colour = series.colour;
+            let drawn = chart
+                .draw_series(LineSeries::new(
+                    series
+                        .points
+                        .iter()
+                        .copied()
+                        .filter(|(x, y)| x.is_finite() && y.is_finite() && *y > 0.0),
+                    colour.stroke_width(1),
+                ))
+                .map_err(e)?;
+            if text {
+                drawn.label(series.label.clone()).legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 4), (x + 14, y + 4)], colour.filled())
+                });
+            }
+        }
+        if text {
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .label_font(("sans-serif", 15))
+                .draw()
+                .map_err(e)?;
+        }
+        root.present().map_err(e)
+    }
+}

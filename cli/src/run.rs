@@ -183,7 +183,7 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
 
 /// The range noise the front-end assumes: the config's, else the simulated laser's, else
 /// 3 cm.
-fn sigma_range(config: &Config, loaded: &Loaded) -> Result<f64> {
+pub fn sigma_range(config: &Config, loaded: &Loaded) -> Result<f64> {
     let sigma = config
         .frontend
         .sigma_range

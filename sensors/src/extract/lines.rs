@@ -334,53 +334,94 @@ fn segment(points: &[ScanPoint], params: &LineExtractorParams) -> Option<Extract
     })
 }
 
-/// Flags corners between consecutive segments and jump edges.
+/// A real end's position and its deviation along the wall (beyond the range noise).
+type PlacedEnd = (Vector2<f64>, f64);
+
+/// Flags corners between consecutive segments and jump edges, and places each real end
+/// where the wall most likely ends: a corner at the intersection of the two lines, an edge
+/// halfway between the last point on the wall and where the next beam's ray crosses the
+/// line (the true edge lies anywhere between them; the last point alone would put it
+/// systematically short by half a beam spacing). A real end's deviation along the wall is
+/// then that of the interval, `width / sqrt(12)`, with the range noise.
 fn mark_real_ends(
     scan: &LaserScan,
     segments: &mut [ExtractedSegment],
     params: &LineExtractorParams,
 ) {
+    let mut placed: Vec<[Option<PlacedEnd>; 2]> = vec![[None, None]; segments.len()];
     for i in 0..segments.len() {
-        for side in 0..2 {
+        for (side, slot) in placed[i].iter_mut().enumerate() {
             let corner = corner_with_neighbour(segments, i, side, params);
-            let edge = !corner && sees_past_the_end(scan, &segments[i], side, params.jump);
-            segments[i].real[side] = corner || edge;
+            let edge = if corner.is_some() {
+                None
+            } else {
+                sees_past_the_end(scan, &segments[i], side, params.jump)
+            };
+            *slot = corner.or(edge);
+        }
+    }
+    for (segment, ends) in segments.iter_mut().zip(placed) {
+        for (side, end) in ends.into_iter().enumerate() {
+            if let Some((position, sigma)) = end {
+                segment.real[side] = true;
+                segment.ends[side] = position;
+                segment.end_spacing[side] = sigma.hypot(params.sigma_range);
+            }
         }
     }
 }
 
+/// The corner where segment `i` meets its neighbour on `side` (the intersection of the two
+/// lines, with no deviation of its own beyond the range noise), if they meet in one.
 fn corner_with_neighbour(
     segments: &[ExtractedSegment],
     i: usize,
     side: usize,
     params: &LineExtractorParams,
-) -> bool {
+) -> Option<PlacedEnd> {
     let neighbour = if side == 0 {
         i.checked_sub(1)
     } else {
         Some(i + 1)
     };
-    let Some(other) = neighbour.and_then(|j| segments.get(j)) else {
-        return false;
-    };
+    let other = neighbour.and_then(|j| segments.get(j))?;
     let mine = segments[i].ends[side];
     let theirs = other.ends[1 - side];
     let angle = (segments[i].alpha - other.alpha).sin().abs().asin();
-    let close = (mine - theirs).norm() <= params.corner_gap;
-    close && angle >= params.min_corner_angle
+    if (mine - theirs).norm() > params.corner_gap || angle < params.min_corner_angle {
+        return None;
+    }
+    // (cos a1, sin a1) . p = rho1 and (cos a2, sin a2) . p = rho2.
+    let (a1, a2) = (segments[i].alpha, other.alpha);
+    let det = (a2 - a1).sin();
+    if det.abs() < 1e-9 {
+        return None;
+    }
+    let (r1, r2) = (segments[i].rho, other.rho);
+    let corner = Vector2::new(
+        (r1 * a2.sin() - r2 * a1.sin()) / det,
+        (r2 * a1.cos() - r1 * a2.cos()) / det,
+    );
+    // A corner that is not near both ends is not this corner.
+    ((corner - mine).norm() <= params.corner_gap).then_some((corner, 0.0))
 }
 
-/// Whether the reading just outside `side` of the segment lies beyond the line's extension.
-fn sees_past_the_end(scan: &LaserScan, segment: &ExtractedSegment, side: usize, jump: f64) -> bool {
+/// When the reading just outside `side` of the segment lies beyond the line's extension (a
+/// jump edge), the end's most likely position and deviation along the wall.
+fn sees_past_the_end(
+    scan: &LaserScan,
+    segment: &ExtractedSegment,
+    side: usize,
+    jump: f64,
+) -> Option<PlacedEnd> {
     let beam = segment.beams[side];
     let next = if side == 0 {
         beam.checked_sub(1)
     } else {
         Some(beam + 1)
     };
-    let Some(next) = next.filter(|&b| b < scan.ranges.len()) else {
-        return false; // edge of the field of view
-    };
+    // None: the edge of the field of view.
+    let next = next.filter(|&b| b < scan.ranges.len())?;
     let bearing = scan.bearing(next);
     let cos = (bearing - segment.alpha).cos();
     let line_range = if cos > 1e-3 {
@@ -388,12 +429,22 @@ fn sees_past_the_end(scan: &LaserScan, segment: &ExtractedSegment, side: usize, 
     } else {
         f64::INFINITY
     };
-    match far_or_unknown(scan, next) {
+    let past = match far_or_unknown(scan, next) {
         Neighbour::Range(r) => r > line_range + jump,
         // No return: the wall would have been seen there had it continued within range.
         Neighbour::NoReturn => line_range + jump < scan.max_range,
         Neighbour::Unknown => false,
+    };
+    if !past {
+        return None;
     }
+    let last = segment.ends[side];
+    if !line_range.is_finite() {
+        return Some((last, 0.0));
+    }
+    let crossing = Vector2::new(bearing.cos(), bearing.sin()) * line_range;
+    let width = (crossing - last).norm();
+    Some(((last + crossing) / 2.0, width / 12f64.sqrt()))
 }
 
 #[cfg(test)]

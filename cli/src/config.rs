@@ -58,6 +58,20 @@ pub struct DataConfig {
     pub initial_pose_sigma: [f64; 3],
     /// Process at most this many events (0: all).
     pub max_events: usize,
+    /// Victoria Park reader noise settings.
+    pub victoria_park: crate::data::VictoriaParkConfig,
+    /// MR.CLAM reader noise settings.
+    pub mrclam: crate::data::MrclamConfig,
+}
+
+impl DataConfig {
+    /// The readers' settings.
+    pub fn reader_options(&self) -> crate::data::ReaderOptions {
+        crate::data::ReaderOptions {
+            victoria_park: self.victoria_park.clone(),
+            mrclam: self.mrclam.clone(),
+        }
+    }
 }
 
 impl Default for DataConfig {
@@ -67,6 +81,8 @@ impl Default for DataConfig {
             seed: 1,
             initial_pose_sigma: [0.0; 3],
             max_events: 0,
+            victoria_park: Default::default(),
+            mrclam: Default::default(),
         }
     }
 }

@@ -105,7 +105,7 @@ fn one_run(config: &Config, seed: u64) -> Result<RunOutcome> {
             config.data.spec
         )));
     }
-    let loaded = spec.load(seed)?;
+    let loaded = spec.load_with(seed, &config.data.reader_options())?;
     let sigma = crate::run::sigma_range(config, &loaded)?;
     let truth_map = loaded.truth.clone();
     let result = pipeline::run(
@@ -114,13 +114,18 @@ fn one_run(config: &Config, seed: u64) -> Result<RunOutcome> {
         sigma,
         &indicatif::ProgressBar::hidden(),
     )?;
-    let ate = trajectory_errors(&result)?.map(|t| t.ate_rmse_m);
+    let trajectory = trajectory_errors(&result)?;
     let map_error_m = truth_map.as_ref().map_or(0.0, |t| {
-        map_error_against_truth(result.estimator.as_ref(), t).rms_m
+        map_error_against_truth(
+            result.estimator.as_ref(),
+            t,
+            trajectory.as_ref().map(|t| &t.alignment),
+        )
+        .rms_m
     });
     Ok(RunOutcome {
         nees: pose_nees(&result),
-        ate_rmse_m: ate,
+        ate_rmse_m: trajectory.map(|t| t.ate_rmse_m),
         map_error_m,
     })
 }

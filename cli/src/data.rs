@@ -87,9 +87,79 @@ pub struct Loaded {
     pub laser_sigma_range: Option<f64>,
 }
 
+/// Noise settings of the Victoria Park reader (`[data.victoria_park]`); see
+/// [`VictoriaParkOptions`] for what each means.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VictoriaParkConfig {
+    /// Encoder speed deviation, m/s.
+    pub sigma_speed: f64,
+    /// Steering angle deviation, degrees.
+    pub sigma_steering_deg: f64,
+    /// Trunk range deviation, m.
+    pub sigma_range: f64,
+    /// Trunk bearing deviation, degrees.
+    pub sigma_bearing_deg: f64,
+    /// Trunk radius deviation, m.
+    pub sigma_radius: f64,
+}
+
+impl Default for VictoriaParkConfig {
+    fn default() -> Self {
+        let o = VictoriaParkOptions::default();
+        VictoriaParkConfig {
+            sigma_speed: o.sigma_speed,
+            sigma_steering_deg: o.sigma_steering.to_degrees(),
+            sigma_range: o.sigma_range,
+            sigma_bearing_deg: o.sigma_bearing.to_degrees(),
+            sigma_radius: o.sigma_radius,
+        }
+    }
+}
+
+/// Noise settings of the MR.CLAM reader (`[data.mrclam]`); see [`MrclamOptions`].
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MrclamConfig {
+    /// Forward speed deviation, m/s.
+    pub sigma_v: f64,
+    /// Yaw rate deviation, rad/s.
+    pub sigma_omega: f64,
+    /// Range deviation, m.
+    pub sigma_range: f64,
+    /// Bearing deviation, rad.
+    pub sigma_bearing: f64,
+}
+
+impl Default for MrclamConfig {
+    fn default() -> Self {
+        let o = MrclamOptions::default();
+        MrclamConfig {
+            sigma_v: o.sigma_v,
+            sigma_omega: o.sigma_omega,
+            sigma_range: o.sigma_range,
+            sigma_bearing: o.sigma_bearing,
+        }
+    }
+}
+
+/// Settings of the dataset readers.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ReaderOptions {
+    /// Victoria Park.
+    pub victoria_park: VictoriaParkConfig,
+    /// MR.CLAM.
+    pub mrclam: MrclamConfig,
+}
+
 impl DataSpec {
-    /// Loads the data; simulations use `seed`.
+    /// Loads the data with the readers' default settings; simulations use `seed`.
     pub fn load(&self, seed: u64) -> Result<Loaded> {
+        self.load_with(seed, &ReaderOptions::default())
+    }
+
+    /// Loads the data; simulations use `seed`.
+    pub fn load_with(&self, seed: u64, options: &ReaderOptions) -> Result<Loaded> {
         let simulated = |world: &World| -> Result<Loaded> {
             let run = simulate(world, seed)?;
             Ok(Loaded {
@@ -110,10 +180,27 @@ impl DataSpec {
             DataSpec::World(path) => simulated(&World::from_file(path)?)?,
             DataSpec::Carmen(path) => plain(read_carmen(path, &CarmenOptions::default())?),
             DataSpec::VictoriaPark(dir) => {
-                plain(read_victoria_park(dir, &VictoriaParkOptions::default())?)
+                let v = &options.victoria_park;
+                let reader = VictoriaParkOptions {
+                    sigma_speed: v.sigma_speed,
+                    sigma_steering: v.sigma_steering_deg.to_radians(),
+                    sigma_range: v.sigma_range,
+                    sigma_bearing: v.sigma_bearing_deg.to_radians(),
+                    sigma_radius: v.sigma_radius,
+                    ..VictoriaParkOptions::default()
+                };
+                plain(read_victoria_park(dir, &reader)?)
             }
             DataSpec::Mrclam(dir, robot) => {
-                plain(read_mrclam(dir, *robot, &MrclamOptions::default())?)
+                let m = &options.mrclam;
+                let reader = MrclamOptions {
+                    sigma_v: m.sigma_v,
+                    sigma_omega: m.sigma_omega,
+                    sigma_range: m.sigma_range,
+                    sigma_bearing: m.sigma_bearing,
+                    ..MrclamOptions::default()
+                };
+                plain(read_mrclam(dir, *robot, &reader)?)
             }
             DataSpec::Rb2d(path) => plain(read_rb2d(path)?),
         })

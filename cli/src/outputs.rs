@@ -17,7 +17,7 @@ use slam_sensors::events::KnownLandmark;
 use slam_sensors::sim::TrueMap;
 
 use crate::error::{CliError, Result};
-use crate::eval::{AlignMode, ErrorStats, associate, ate, umeyama};
+use crate::eval::{AlignMode, Alignment, ErrorStats, associate, ate, umeyama};
 use crate::pipeline::RunResult;
 use crate::plot::{Figure, palette};
 
@@ -216,6 +216,11 @@ pub fn pose_nees(result: &RunResult) -> Vec<(f64, f64)> {
 pub struct MapError {
     /// Root mean square over every confirmed feature with a true counterpart, m.
     pub rms_m: f64,
+    /// Median of the same errors, m (robust to a few gross ones).
+    pub median_m: f64,
+    /// Error of each landmark by its id, when landmarks are matched by id, m.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub by_landmark: BTreeMap<u64, f64>,
     /// The same by feature type: `(count, rms)`.
     pub by_type: BTreeMap<String, (usize, f64)>,
     /// How the features were compared with the truth.
@@ -261,7 +266,13 @@ fn segment_error(
 /// ceiling lines by the distance of their ends to the closest true line of similar
 /// direction (plus the height error of ceiling lines), poles and lamps by the distance to the
 /// nearest true one.
-pub fn map_error_against_truth(estimator: &dyn Estimator<Pose2>, truth: &TrueMap) -> MapError {
+pub fn map_error_against_truth(
+    estimator: &dyn Estimator<Pose2>,
+    truth: &TrueMap,
+    alignment: Option<&Alignment>,
+) -> MapError {
+    let place3 = |p: Vector3<f64>| alignment.map_or(p, |a| a.apply(&p));
+    let place = |p: Vector2<f64>| place3(Vector3::new(p.x, p.y, 0.0)).xy();
     let mut errors: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let true_lines: Vec<_> = truth
         .ceiling_lines
@@ -273,14 +284,14 @@ pub fn map_error_against_truth(estimator: &dyn Estimator<Pose2>, truth: &TrueMap
             continue;
         }
         let error = if let Some(wall) = downcast_feature::<Wall>(feature) {
-            segment_error(wall.start(), wall.end(), &truth.walls)
+            segment_error(place(wall.start()), place(wall.end()), &truth.walls)
         } else if let Some(wall) = downcast_feature::<EndpointWall>(feature) {
-            segment_error(wall.start(), wall.end(), &truth.walls)
+            segment_error(place(wall.start()), place(wall.end()), &truth.walls)
         } else if let Some(pole) = downcast_feature::<Pole>(feature) {
             truth
                 .poles
                 .iter()
-                .map(|(c, _)| (c - pole.centre()).norm())
+                .map(|(c, _)| (c - place(pole.centre())).norm())
                 .min_by(f64::total_cmp)
         } else if let Some(line) = downcast_feature::<HLine>(feature) {
             if line.mspace_dim() < 3 {
@@ -305,7 +316,7 @@ pub fn map_error_against_truth(estimator: &dyn Estimator<Pose2>, truth: &TrueMap
             truth
                 .lamps
                 .iter()
-                .map(|l| (l - point.position()).norm())
+                .map(|l| (l - place3(point.position())).norm())
                 .min_by(f64::total_cmp)
         } else {
             None
@@ -317,11 +328,18 @@ pub fn map_error_against_truth(estimator: &dyn Estimator<Pose2>, truth: &TrueMap
                 .push(error);
         }
     }
+    let frame = if alignment.is_some() {
+        "; the map is first moved by the trajectory's ATE alignment"
+    } else {
+        ""
+    };
     summarize(
         errors,
-        "walls and ceiling lines: RMS distance of their ends to the closest true line within \
-         15 degrees (ceiling lines: with the height error); poles and lamps: distance to the \
-         nearest true one",
+        &format!(
+            "walls and ceiling lines: RMS distance of their ends to the closest true line \
+             within 15 degrees (ceiling lines: with the height error); poles and lamps: \
+             distance to the nearest true one{frame}"
+        ),
     )
 }
 
@@ -350,7 +368,12 @@ pub fn map_error_against_landmarks(
                 _ => continue,
             },
         };
-        pairs.push((feature.kind().to_string(), estimate, *truth));
+        pairs.push((
+            feature.kind().to_string(),
+            estimate,
+            *truth,
+            estimator.landmark_id(id).unwrap_or_default(),
+        ));
     }
     let mut method = "known landmarks matched by id: distance of each estimate to its \
                       surveyed position"
@@ -358,33 +381,44 @@ pub fn map_error_against_landmarks(
     if align && pairs.len() >= 3 {
         let from: Vec<_> = pairs
             .iter()
-            .map(|(_, e, _)| Vector3::new(e.x, e.y, 0.0))
+            .map(|(_, e, _, _)| Vector3::new(e.x, e.y, 0.0))
             .collect();
         let to: Vec<_> = pairs
             .iter()
-            .map(|(_, _, t)| Vector3::new(t.x, t.y, 0.0))
+            .map(|(_, _, t, _)| Vector3::new(t.x, t.y, 0.0))
             .collect();
         let alignment = umeyama(&from, &to, false)?;
-        for ((_, estimate, _), p) in pairs.iter_mut().zip(&from) {
+        for ((_, estimate, _, _), p) in pairs.iter_mut().zip(&from) {
             *estimate = alignment.apply(p).xy();
         }
         method.push_str(", after the least-squares rigid alignment of the estimated landmarks");
     }
     let mut errors: BTreeMap<String, Vec<f64>> = BTreeMap::new();
-    for (kind, estimate, truth) in pairs {
-        errors
-            .entry(kind)
-            .or_default()
-            .push((estimate - truth).norm());
+    let mut by_landmark = BTreeMap::new();
+    for (kind, estimate, truth, landmark) in pairs {
+        let error = (estimate - truth).norm();
+        errors.entry(kind).or_default().push(error);
+        by_landmark.insert(landmark, error);
     }
-    Ok(summarize(errors, &method))
+    Ok(MapError {
+        by_landmark,
+        ..summarize(errors, &method)
+    })
 }
 
 fn summarize(errors: BTreeMap<String, Vec<f64>>, method: &str) -> MapError {
     let rms = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt();
-    let all: Vec<f64> = errors.values().flatten().copied().collect();
+    let mut all: Vec<f64> = errors.values().flatten().copied().collect();
+    all.sort_by(f64::total_cmp);
+    let median = match all.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => all[n / 2],
+        n => 0.5 * (all[n / 2 - 1] + all[n / 2]),
+    };
     MapError {
         rms_m: rms(&all),
+        median_m: median,
+        by_landmark: BTreeMap::new(),
         by_type: errors
             .iter()
             .map(|(k, v)| (k.clone(), (v.len(), rms(v))))
@@ -439,6 +473,9 @@ pub struct TrajectoryErrors {
     pub ate: ErrorStats,
     /// Whether the poses compared against are independent truth or another system's output.
     pub against: &'static str,
+    /// The alignment of the estimate onto the references.
+    #[serde(skip)]
+    pub alignment: Alignment,
 }
 
 /// ATE of the estimates against the truth poses (`True` preferred, else `Reference`).
@@ -454,15 +491,28 @@ pub fn trajectory_errors(result: &RunResult) -> Result<Option<TrajectoryErrors>>
             })
             .collect()
     };
-    let (gt, against) = match stamped(TruthKind::True) {
-        gt if !gt.is_empty() => (gt, "ground truth"),
-        _ => (stamped(TruthKind::Reference), "reference poses of the data"),
+    let gps: Vec<StampedPose> = result
+        .gps
+        .iter()
+        .map(|(t, p)| StampedPose {
+            time: *t,
+            pose: slam_core::Pose3::new(Vector3::new(p.x, p.y, 0.0), 0.0, 0.0, 0.0),
+        })
+        .collect();
+    // Estimates are at the data's own times; GPS fixes come at theirs: pair them within
+    // half a second.
+    let (gt, against, max_dt) = match stamped(TruthKind::True) {
+        gt if !gt.is_empty() => (gt, "ground truth", 1e-6),
+        _ => match stamped(TruthKind::Reference) {
+            reference if !reference.is_empty() => (reference, "reference poses of the data", 1e-6),
+            _ => (gps, "GPS fixes (positions only)", 0.5),
+        },
     };
     if gt.len() < 3 {
         return Ok(None);
     }
     let est = trajectory(result);
-    let pairs = associate(&gt, &est, 1e-6);
+    let pairs = associate(&gt, &est, max_dt);
     if pairs.len() < 3 {
         return Ok(None);
     }
@@ -473,6 +523,7 @@ pub fn trajectory_errors(result: &RunResult) -> Result<Option<TrajectoryErrors>>
         ate_rmse_unaligned_m: unaligned.errors.rmse,
         ate: aligned.errors,
         against,
+        alignment: aligned.alignment,
     }))
 }
 

@@ -54,7 +54,11 @@ struct Metrics {
     ate_rmse_unaligned_m: Option<f64>,
     ate_against: Option<&'static str>,
     ate: Option<ErrorStats>,
+    /// Map error after the trajectory's ATE alignment (where the map is compared with a
+    /// true map), m.
     map_error_m: Option<f64>,
+    /// The same without alignment, m.
+    map_error_unaligned_m: Option<f64>,
     map_error: Option<MapError>,
     /// Robot pose NEES (3 dof) at every step with a true pose.
     nees: Option<ChiSquareSummary>,
@@ -89,7 +93,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
 /// Runs a configuration and writes its outputs; returns a one-line summary.
 pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
     let spec: DataSpec = config.data.spec.parse()?;
-    let loaded = spec.load(config.data.seed)?;
+    let loaded = spec.load_with(config.data.seed, &config.data.reader_options())?;
     let sigma_range = sigma_range(config, &loaded)?;
     let Loaded {
         dataset,
@@ -107,8 +111,12 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
         .truth
         .iter()
         .any(|t| t.2 == slam_sensors::TruthKind::True);
+    let alignment = trajectory.as_ref().map(|t| &t.alignment);
+    let map_error_unaligned = truth_map
+        .as_ref()
+        .map(|truth| map_error_against_truth(estimator, truth, None).rms_m);
     let map_error = match (&truth_map, landmarks.is_empty()) {
-        (Some(truth), _) => Some(map_error_against_truth(estimator, truth)),
+        (Some(truth), _) => Some(map_error_against_truth(estimator, truth, alignment)),
         (None, false) => Some(map_error_against_landmarks(
             estimator,
             &landmarks,
@@ -132,6 +140,7 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
         ate_against: trajectory.as_ref().map(|t| t.against),
         ate: trajectory.as_ref().map(|t| t.ate),
         map_error_m: map_error.as_ref().map(|m| m.rms_m),
+        map_error_unaligned_m: map_error_unaligned,
         map_error,
         nees: if nees.is_empty() {
             None

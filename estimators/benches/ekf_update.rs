@@ -1,0 +1,201 @@
+//! One EKF update of [`slam_estimators::Ekf`] against map size.
+//!
+//! Range-bearing point landmarks (`slam_sensors::models::RangeBearing`, the 2-D use of
+//! `slam_features::Point`) with known ids, so no association search: the state has `3 + 2n`
+//! rows for `n` landmarks. The filter is built once per size outside the timed loop: every
+//! landmark is observed twice, in batches of 100 with an odometry prediction between batches,
+//! so the covariance is dense (every landmark correlated with the pose and the others).
+//!
+//! `Ekf` does not implement `Clone`, so the timed routine is one **predict + update pair** on
+//! the same filter: a still-standing unicycle prediction (noise only, O(n)), then one update
+//! with 16 observations of known landmarks (the rb2d benchmark's typical step). The state
+//! size stays constant because every landmark is already in the state; consecutive
+//! iterations cycle through the landmarks 16 at a time. The `ekf_predict` group times the
+//! prediction alone, to show its share.
+//!
+//! ```sh
+//! CARGO_TARGET_DIR=/work/target-bench cargo bench -p slam-estimators --bench ekf_update
+//! ```
+//! Results and their discussion: `BENCHMARKS.md`.
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use criterion::{BenchmarkId, Criterion, SamplingMode, criterion_group, criterion_main};
+use slam_core::nalgebra::DMatrix;
+use slam_core::{Estimator, Feature, Observation, Pose2, Pose3, downcast_feature};
+use slam_estimators::{Ekf, EkfParams};
+use slam_features::Point;
+use slam_sensors::models::RangeBearing;
+use slam_sensors::odometry::{Integration, Unicycle};
+
+/// Map sizes of the main group.
+const SIZES: [usize; 6] = [50, 100, 200, 500, 1000, 2000];
+/// Map sizes of the group without the observability constraint.
+const SIZES_NO_OC: [usize; 2] = [500, 2000];
+/// Observations per timed update.
+const PER_UPDATE: usize = 16;
+/// Observations per update while the filter is built.
+const BUILD_BATCH: usize = 100;
+/// Measurement noise: range (m) and bearing (rad).
+const SIGMA_RANGE: f64 = 0.1;
+const SIGMA_BEARING_DEG: f64 = 1.0;
+
+/// A deterministic uniform number in `[-1, 1)` (splitmix64), for reproducible noise.
+fn noise(seed: u64) -> f64 {
+    let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+}
+
+/// Landmark `i` of `n`: a golden-angle spiral around the robot (at the origin), ranges
+/// from 2 m to 20 m, returned as the measured range and bearing.
+fn landmark(i: usize, n: usize) -> (f64, f64) {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let range = 2.0 + 18.0 * ((i as f64 + 0.5) / n as f64).sqrt();
+    (range, i as f64 * golden)
+}
+
+/// One observation of landmark `i` of `n`, with small deterministic noise (`draw` varies it).
+fn observation(i: usize, n: usize, draw: u64) -> Observation {
+    let (range, bearing) = landmark(i, n);
+    let sigma_bearing = SIGMA_BEARING_DEG.to_radians();
+    let seed = (i as u64) << 8 | draw;
+    let measurement = RangeBearing::new(
+        range + 0.5 * SIGMA_RANGE * noise(2 * seed),
+        bearing + 0.5 * sigma_bearing * noise(2 * seed + 1),
+        SIGMA_RANGE,
+        sigma_bearing,
+    )
+    .expect("a valid range-bearing measurement");
+    Observation {
+        robot_from_sensor: Pose3::identity(),
+        measurement: Box::new(measurement),
+        landmark_id: Some(i as u64),
+    }
+}
+
+/// The odometry of a robot standing still for 0.1 s: the pose does not move (so the
+/// measurements stay valid), the pose covariance grows.
+fn still() -> Unicycle {
+    Unicycle::new(0.0, 0.0, 0.1, 0.05, 2f64.to_radians(), Integration::Arc)
+        .expect("a valid unicycle")
+}
+
+/// A filter with `n` landmarks and a dense covariance (`3 + 2n` rows).
+fn prepared_filter(n: usize, params: EkfParams) -> Ekf<Pose2> {
+    let mut ekf = Ekf::new(Pose2::identity(), DMatrix::zeros(3, 3), params).expect("a filter");
+    let motion = still();
+    for pass in 0..2u64 {
+        for start in (0..n).step_by(BUILD_BATCH) {
+            let batch: Vec<Observation> = (start..(start + BUILD_BATCH).min(n))
+                .map(|i| observation(i, n, 100 + pass))
+                .collect();
+            ekf.predict(&motion).expect("prediction");
+            let report = ekf.update(&batch).expect("update");
+            assert_eq!(report.rejected, 0, "n = {n}: {report:?}");
+        }
+    }
+    assert_eq!(ekf.state_dim(), 3 + 2 * n, "n = {n}");
+    assert_eq!(ekf.map().len(), n);
+    for (_, feature) in ekf.map().iter() {
+        let point = downcast_feature::<Point>(feature).expect("every feature is a Point");
+        assert_eq!(point.mspace_dim(), 2, "the 2-D use of the point");
+    }
+    // Dense: the first landmark is correlated with the last one.
+    let c = ekf.covariance();
+    assert!(
+        c[(3, 3 + 2 * n - 2)].abs() > 0.0,
+        "n = {n}: covariance not dense"
+    );
+    ekf
+}
+
+/// The timed steps: `ceil(n / 16)` updates of 16 distinct landmarks each, cycling through
+/// the map (with wrap-around when 16 does not divide `n`).
+fn steps(n: usize) -> Vec<Vec<Observation>> {
+    (0..n.div_ceil(PER_UPDATE))
+        .map(|g| {
+            (0..PER_UPDATE)
+                .map(|j| observation((g * PER_UPDATE + j) % n, n, j as u64))
+                .collect()
+        })
+        .collect()
+}
+
+/// Times predict + update pairs on `ekf` (its state size must not change).
+fn time_step(
+    group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+    n: usize,
+    ekf: &mut Ekf<Pose2>,
+) {
+    let steps = steps(n);
+    let motion = still();
+    let dim = ekf.state_dim();
+    // One untimed step to check that all 16 observations are used.
+    ekf.predict(&motion).expect("prediction");
+    let report = ekf.update(&steps[0]).expect("update");
+    assert_eq!(
+        (report.associated, report.new_features, report.rejected),
+        (PER_UPDATE, 0, 0),
+        "n = {n}: {report:?}"
+    );
+    let mut k = 1;
+    group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
+        b.iter(|| {
+            ekf.predict(&motion).expect("prediction");
+            let report = ekf.update(&steps[k % steps.len()]).expect("update");
+            k += 1;
+            black_box(report)
+        });
+    });
+    assert_eq!(ekf.state_dim(), dim, "the state size changed while timing");
+}
+
+fn configure(group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>) {
+    group
+        .sampling_mode(SamplingMode::Flat)
+        .sample_size(30)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(6));
+}
+
+fn benches(c: &mut Criterion) {
+    let mut filters = Vec::new();
+
+    let mut group = c.benchmark_group("ekf_update");
+    configure(&mut group);
+    for n in SIZES {
+        let mut ekf = prepared_filter(n, EkfParams::default());
+        time_step(&mut group, n, &mut ekf);
+        filters.push((n, ekf));
+    }
+    group.finish();
+
+    let mut group = c.benchmark_group("ekf_update_no_observability_constraint");
+    configure(&mut group);
+    let params = EkfParams {
+        observability_constraint: false,
+        ..Default::default()
+    };
+    for n in SIZES_NO_OC {
+        let mut ekf = prepared_filter(n, params.clone());
+        time_step(&mut group, n, &mut ekf);
+    }
+    group.finish();
+
+    let mut group = c.benchmark_group("ekf_predict");
+    configure(&mut group);
+    let motion = still();
+    for (n, ekf) in &mut filters {
+        group.bench_with_input(BenchmarkId::from_parameter(*n), n, |b, _| {
+            b.iter(|| ekf.predict(black_box(&motion)).expect("prediction"));
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(ekf_update, benches);
+criterion_main!(ekf_update);

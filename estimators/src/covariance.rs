@@ -8,6 +8,7 @@
 
 use faer::linalg::matmul::matmul;
 use faer::linalg::matmul::triangular::{self, BlockStructure};
+use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
 use faer::{Accum, Mat, Par};
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{Error, Result};
@@ -199,23 +200,16 @@ impl StateCovariance {
         let cholesky = s
             .cholesky()
             .ok_or_else(|| Error::Singular("innovation covariance S of an EKF update".into()))?;
-        let l_inv = cholesky
-            .l()
-            .solve_lower_triangular(&DMatrix::identity(m, m))
-            .ok_or_else(|| Error::Singular("Cholesky factor of S".into()))?;
-        let mut w = Mat::<f64>::zeros(n, m);
-        matmul(
-            &mut w,
-            Accum::Replace,
-            &pht,
-            &to_faer(&l_inv.transpose()),
-            1.0,
-            Par::Seq,
-        );
-        let whitened = &l_inv * eta;
+        let l = to_faer(&cholesky.l());
+        // W^T = L^{-1} (C H^T)^T, solved in place (m x n right-hand side).
+        let mut w_t = pht.transpose().to_owned();
+        solve_lower_triangular_in_place(l.as_ref(), w_t.as_mut(), Par::Seq);
+        let w = w_t.transpose().to_owned();
+        let mut whitened = Mat::<f64>::from_fn(m, 1, |i, _| eta[i]);
+        solve_lower_triangular_in_place(l.as_ref(), whitened.as_mut(), Par::Seq);
         let mut dx = DVector::zeros(n);
         for (i, value) in dx.iter_mut().enumerate() {
-            *value = -(0..m).map(|k| w[(i, k)] * whitened[k]).sum::<f64>();
+            *value = -(0..m).map(|k| w_t[(k, i)] * whitened[(k, 0)]).sum::<f64>();
         }
         if !dx.iter().all(|v| v.is_finite()) {
             return Err(Error::NonFinite("EKF state change".into()));

@@ -182,4 +182,34 @@ impl Feature for Point {
     fn dual(&self) -> Result<DMatrix<f64>> {
         Ok(self.projection()?.transpose())
     }
+
+    /// `x_f += B~ dx_p` without forming B~: its rows are unit rows (the hot path of a
+    /// landmark EKF, run for every point at every update).
+    fn apply_perturbation(&mut self, dx_p: &slam_core::nalgebra::DVector<f64>) -> Result<()> {
+        if dx_p.len() != self.mspace_dim() {
+            return Err(Error::DimensionMismatch {
+                what: "M-space perturbation of a point".into(),
+                expected: self.mspace_dim(),
+                got: dx_p.len(),
+            });
+        }
+        slam_core::ensure_finite(dx_p.as_slice(), "M-space perturbation")?;
+        let mut position = self.position();
+        let mut row = 0;
+        for subspace in &self.active {
+            match subspace {
+                PointSubspace::Horizontal => {
+                    position.x += dx_p[row];
+                    position.y += dx_p[row + 1];
+                    row += 2;
+                }
+                PointSubspace::Height => {
+                    position.z += dx_p[row];
+                    row += 1;
+                }
+            }
+        }
+        self.coordinates = Coordinates::new(vec![CoordBlock::Point3(position)])?;
+        Ok(())
+    }
 }

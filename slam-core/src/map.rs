@@ -380,16 +380,48 @@ impl FeatureMap {
     /// perturbations are applied with each feature's B~ at its pre-update coordinates, then
     /// shared blocks move in every member. All or nothing: on error the map is unchanged.
     pub fn apply(&mut self, perturbations: &[(RowOwner, DVector<f64>)]) -> Result<()> {
-        let mut features: std::collections::BTreeMap<usize, Box<dyn Feature>> = Default::default();
-        let mut shared_values = std::collections::BTreeMap::new();
+        // Applied in place; on error every touched feature gets its coordinates back.
+        let mut saved: Vec<(usize, crate::Coordinates)> = Vec::new();
+        let mut touched = vec![false; self.features.len()];
+        let result = self.apply_in_place(perturbations, &mut saved, &mut touched);
+        if result.is_err() {
+            for (index, coordinates) in saved.into_iter().rev() {
+                if let Some(feature) = self.features[index].as_mut() {
+                    // The coordinates were valid before this call: restoring them succeeds.
+                    let _ = feature.set_coordinates(coordinates);
+                }
+            }
+        }
+        result
+    }
+
+    fn apply_in_place(
+        &mut self,
+        perturbations: &[(RowOwner, DVector<f64>)],
+        saved: &mut Vec<(usize, crate::Coordinates)>,
+        touched: &mut [bool],
+    ) -> Result<()> {
+        let mut save = |index: usize, feature: &dyn Feature, touched: &mut [bool]| {
+            if !touched[index] {
+                touched[index] = true;
+                saved.push((index, feature.coordinates().clone()));
+            }
+        };
         for (owner, dx) in perturbations {
             if let RowOwner::Feature(id) = owner {
-                let feature = features
-                    .entry(id.0)
-                    .or_insert(dyn_clone::clone_box(self.get(*id)?));
+                let feature = self
+                    .features
+                    .get_mut(id.0)
+                    .and_then(|f| f.as_deref_mut())
+                    .ok_or(Error::UnknownId {
+                        what: "feature",
+                        id: id.0,
+                    })?;
+                save(id.0, feature, touched);
                 feature.apply_perturbation(dx)?;
             }
         }
+        let mut shared_values = Vec::new();
         for (owner, dx) in perturbations {
             if let RowOwner::Shared(id) = owner {
                 let shared = self.shared_block(*id)?;
@@ -400,22 +432,26 @@ impl FeatureMap {
                         got: dx.len(),
                     });
                 }
-                let mut value = shared_values.get(&id.0).copied().unwrap_or(shared.value);
+                let mut value = shared.value;
                 for (v, d) in value.as_mut_slice().iter_mut().zip(dx.iter()) {
                     *v += d;
                 }
                 ensure_finite(value.as_slice(), "shared block after update")?;
-                for &(member, block) in &shared.members {
-                    let feature = features
-                        .entry(member.0)
-                        .or_insert(dyn_clone::clone_box(self.get(member)?));
+                let members = shared.members.clone();
+                for (member, block) in members {
+                    let feature = self
+                        .features
+                        .get_mut(member.0)
+                        .and_then(|f| f.as_deref_mut())
+                        .ok_or(Error::UnknownId {
+                            what: "feature",
+                            id: member.0,
+                        })?;
+                    save(member.0, feature, touched);
                     feature.set_block(block, value)?;
                 }
-                shared_values.insert(id.0, value);
+                shared_values.push((id.0, value));
             }
-        }
-        for (index, feature) in features {
-            self.features[index] = Some(feature);
         }
         for (index, value) in shared_values {
             if let Some(shared) = self.shared[index].as_mut() {

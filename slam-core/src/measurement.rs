@@ -143,6 +143,12 @@ pub trait MeasurementModel: Clone + Debug + Send + Sync + 'static {
         Ok(None)
     }
 
+    /// Whether [`triangulate`](Self::triangulate) can ever place a feature: an estimator
+    /// keeps views of growing features only for measurements that triangulate. Default: false.
+    fn triangulates(&self) -> bool {
+        false
+    }
+
     /// A feature placed by several measurements of it taken from different sensor poses
     /// (`world_from_sensor`, measurement), for features that one measurement cannot place
     /// (bearing-only lamps, ceiling lines), with the subspaces the views reveal together.
@@ -227,6 +233,9 @@ pub trait DynMeasurementModel: Debug + Send + Sync {
     /// A boxed copy (an estimator keeps the views of a feature it triangulates).
     fn clone_box(&self) -> Box<dyn DynMeasurementModel>;
 
+    /// [`MeasurementModel::triangulates`].
+    fn triangulates_dyn(&self) -> bool;
+
     /// The measurement as `Any`, to recover its concrete type.
     fn as_any(&self) -> &dyn std::any::Any;
 }
@@ -300,6 +309,10 @@ impl<M: MeasurementModel> DynMeasurementModel for M {
 
     fn clone_box(&self) -> Box<dyn DynMeasurementModel> {
         Box::new(self.clone())
+    }
+
+    fn triangulates_dyn(&self) -> bool {
+        self.triangulates()
     }
 
     fn as_any(&self) -> &dyn std::any::Any {

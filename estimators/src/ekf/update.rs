@@ -223,7 +223,8 @@ impl<P: RobotPose> Ekf<P> {
             .measurement
             .revealed_subspaces_dyn(feature, &x_o)
             .unwrap_or_default();
-        let can_grow = !feature.growth_options().is_empty();
+        let can_grow =
+            observation.measurement.triangulates_dyn() && !feature.growth_options().is_empty();
         let pose_covariance = slam_core::Estimator::pose_covariance(self);
         let step = self.step;
         let max_views = self.params.max_views;
@@ -280,7 +281,10 @@ impl<P: RobotPose> Ekf<P> {
         }
         let mut new_dim = self.map.get(id)?.mspace_dim();
         let mut triangulated = false;
-        if new_dim == old_dim && self.triangulate(id, observation)? {
+        if new_dim == old_dim
+            && observation.measurement.triangulates_dyn()
+            && self.triangulate(id, observation)?
+        {
             new_dim = self.map.get(id)?.mspace_dim();
             let added = new_dim - old_dim;
             priors.push(DMatrix::identity(added, added) * self.params.new_row_variance);

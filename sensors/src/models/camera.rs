@@ -119,6 +119,10 @@ impl MeasurementModel for ImagePointObservation {
 
     /// Least-squares intersection of the viewing rays; needs two rays at least
     /// [`MIN_PARALLAX`] apart, and the point in front of every camera.
+    fn triangulates(&self) -> bool {
+        true
+    }
+
     fn triangulate(views: &[(Pose3, &Self)]) -> Result<Option<Triangulation<Point>>> {
         let rays: Vec<_> = views.iter().map(|(pose, z)| z.world_ray(pose)).collect();
         let parallax = rays
@@ -426,6 +430,10 @@ impl MeasurementModel for ImageLineObservation {
     /// The horizontal line lying in every viewing plane: its direction is orthogonal to the
     /// planes' normals, its position the least-squares solution of the plane equations.
     /// Needs two planes at least [`MIN_PARALLAX`] apart (seen across the line, not along it).
+    fn triangulates(&self) -> bool {
+        true
+    }
+
     fn triangulate(views: &[(Pose3, &Self)]) -> Result<Option<Triangulation<HLine>>> {
         if views.len() < 2 {
             return Ok(None);

@@ -14,7 +14,7 @@
 //! walls = true            # laser scans -> wall segments
 //! poles = true            # laser scans -> poles
 //! camera = true           # ceiling images -> lines and lamps
-//! landmarks = true        # observations the data give (range-bearing landmarks, trees)
+//! landmarks = true        # observations the data give (default: when there is no raw data)
 //! wall_representation = "mspace"      # or "endpoints" (the naive representation, for comparison)
 //!
 //! [output]
@@ -133,8 +133,9 @@ pub struct FrontendConfig {
     /// Extract lines and lamps from ceiling images.
     pub camera: bool,
     /// Use the observations the data give ready-made (range-bearing landmarks, tree
-    /// detections).
-    pub landmarks: bool,
+    /// detections). Default (absent): only when the data hold no raw scans or images, since
+    /// a simulated world's range-bearing stream sees the same poles the laser does.
+    pub landmarks: Option<bool>,
     /// How walls are represented.
     pub wall_representation: WallRepresentation,
     /// Standard deviation along the wall of an endpoint not seen as a real end, for the
@@ -160,7 +161,7 @@ impl Default for FrontendConfig {
             walls: true,
             poles: true,
             camera: true,
-            landmarks: true,
+            landmarks: None,
             wall_representation: WallRepresentation::Mspace,
             endpoint_sigma_along_wall: 1.0,
             sigma_range: None,

@@ -236,6 +236,22 @@ pub fn run(args: &ConsistencyArgs) -> Result<()> {
     }
     config.output.plots = false;
     let report = run_study(&config, &args.walls, args.runs, args.first_seed, args.quiet)?;
+    for (name, study) in &report.representations {
+        if study.runs_ok == 0 {
+            let reason = study
+                .failures
+                .first()
+                .map_or("no run".to_string(), |(seed, e)| {
+                    format!("seed {seed}: {e}")
+                });
+            return Err(CliError::Usage(format!(
+                "every {name} run failed; the first: {reason}"
+            )));
+        }
+        for (seed, error) in &study.failures {
+            eprintln!("slam consistency: {name} run with seed {seed} failed: {error}");
+        }
+    }
     let dir = &args.out;
     std::fs::create_dir_all(dir).map_err(|e| CliError::Output {
         path: dir.display().to_string(),
@@ -324,5 +340,52 @@ fn chart(report: &Report) -> LineChart {
             })
             .collect(),
         band: Some(report.band_95),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The default world driven along the corridor into the pillar room, without the camera.
+    fn short_world() -> PathBuf {
+        let mut world = slam_sensors::sim::World::default_world();
+        world.camera = None;
+        world.robot.waypoints.truncate(3);
+        let path = std::env::temp_dir().join(format!(
+            "slam-cli-consistency-{}-world.toml",
+            std::process::id()
+        ));
+        std::fs::write(&path, toml::to_string(&world).unwrap()).unwrap();
+        path
+    }
+
+    #[test]
+    fn mspace_walls_are_more_consistent_than_endpoint_walls() {
+        let world = short_world();
+        let mut config = Config::default();
+        config.data.spec = format!("world:{}", world.display());
+        let walls = [WallRepresentation::Mspace, WallRepresentation::Endpoints];
+        let report = run_study(&config, &walls, 3, 1, true).unwrap();
+        let mspace = &report.representations["mspace"];
+        let endpoints = &report.representations["endpoints"];
+        assert_eq!((mspace.runs_ok, endpoints.runs_ok), (3, 3));
+        assert!(mspace.steps > 500, "{} steps", mspace.steps);
+        // The paper's Fig. 1 claim: the naive representation is overconfident and less
+        // accurate on the same runs.
+        assert!(
+            mspace.mean_nees < endpoints.mean_nees / 10.0,
+            "mean NEES {} against {}",
+            mspace.mean_nees,
+            endpoints.mean_nees
+        );
+        assert!(
+            mspace.ate_rmse_mean_m < endpoints.ate_rmse_mean_m,
+            "ATE {} against {}",
+            mspace.ate_rmse_mean_m,
+            endpoints.ate_rmse_mean_m
+        );
+        assert!(mspace.fraction_within_band > 0.5, "{mspace:?}");
+        std::fs::remove_file(&world).unwrap();
     }
 }

@@ -218,6 +218,8 @@ pub struct MapError {
     pub rms_m: f64,
     /// Median of the same errors, m (robust to a few gross ones).
     pub median_m: f64,
+    /// Number of features compared.
+    pub count: usize,
     /// Error of each landmark by its id, when landmarks are matched by id, m.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub by_landmark: BTreeMap<u64, f64>,
@@ -418,6 +420,7 @@ fn summarize(errors: BTreeMap<String, Vec<f64>>, method: &str) -> MapError {
     MapError {
         rms_m: rms(&all),
         median_m: median,
+        count: all.len(),
         by_landmark: BTreeMap::new(),
         by_type: errors
             .iter()

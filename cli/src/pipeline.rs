@@ -124,6 +124,11 @@ pub fn run(
         0 => usize::MAX,
         n => n,
     };
+    let raw_data = dataset
+        .events
+        .iter()
+        .any(|e| matches!(e.event, Event::Scan { .. } | Event::Image { .. }));
+    let use_given = config.frontend.landmarks.unwrap_or(!raw_data);
     let events: Vec<_> = dataset.events.into_iter().take(limit).collect();
     let count = events.len();
     let mut iter = events.into_iter().peekable();
@@ -145,7 +150,7 @@ pub fn run(
                 camera,
                 robot_from_sensor,
             } => frontend.image_observations(&image, &camera, &robot_from_sensor)?,
-            Event::Observations(observations) if config.frontend.landmarks => observations,
+            Event::Observations(observations) if use_given => observations,
             Event::Observations(_) => Vec::new(),
             Event::GroundTruth { pose, kind } => {
                 truth.push((time, pose, kind));

@@ -181,12 +181,13 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
         args.out.display()
     );
     println!(
-        "{:>8} {:>8} {:>7} {:>6} {:>5} {:>5} {:>9} {:>9}",
-        "alpha", "rho", "length", "points", "real0", "real1", "sd_alpha", "sd_rho"
+        "{:>8} {:>8} {:>7} {:>6} {:>5} {:>5} {:>9} {:>9} {:>9}  ends ({frame})",
+        "alpha", "rho", "length", "points", "real0", "real1", "sd_alpha", "sd_rho", "sd_end"
     );
     for s in &segments {
+        let (a, b) = (to_world(&s.ends[0]), to_world(&s.ends[1]));
         println!(
-            "{:>8.3} {:>8.3} {:>7.2} {:>6} {:>5} {:>5} {:>9.5} {:>9.5}",
+            "{:>8.3} {:>8.3} {:>7.2} {:>6} {:>5} {:>5} {:>9.5} {:>9.5} {:>9.4}  ({:.3}, {:.3}) ({:.3}, {:.3})",
             s.alpha,
             s.rho,
             s.length(),
@@ -194,7 +195,12 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
             s.real[0],
             s.real[1],
             s.cov[(0, 0)].sqrt(),
-            s.cov[(1, 1)].sqrt()
+            s.cov[(1, 1)].sqrt(),
+            s.end_spacing[0].max(s.end_spacing[1]),
+            a.x,
+            a.y,
+            b.x,
+            b.y
         );
     }
     for p in &poles {

@@ -199,13 +199,15 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
     ))
 }
 
-/// The range noise the front-end assumes: the config's, else the simulated laser's, else
-/// 3 cm.
+/// The range noise the front-end assumes: the config's, else the simulated laser's times
+/// the configured factor, else 3 cm.
 pub fn sigma_range(config: &Config, loaded: &Loaded) -> Result<f64> {
     let sigma = config
         .frontend
         .sigma_range
-        .or(loaded.laser_sigma_range)
+        .or(loaded
+            .laser_sigma_range
+            .map(|s| s * config.frontend.simulated_noise_factor))
         .unwrap_or(0.03);
     if sigma.is_finite() && sigma > 0.0 {
         Ok(sigma)

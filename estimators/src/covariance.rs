@@ -8,7 +8,6 @@
 
 use faer::linalg::matmul::matmul;
 use faer::linalg::matmul::triangular::{self, BlockStructure};
-use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
 use faer::{Accum, Mat, Par};
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{Error, Result};
@@ -190,26 +189,43 @@ impl StateCovariance {
                 dx: DVector::zeros(n),
             });
         }
+        // C H^T over the nonzeros of H only: each measurement row touches the pose and one
+        // feature's rows, so H is block-sparse and this is O(n nnz(H)) instead of O(n m |T|).
         let c_cols = self.columns(indices);
-        let h_t = to_faer(&h.transpose());
         let mut pht = Mat::<f64>::zeros(n, m);
-        matmul(&mut pht, Accum::Replace, &c_cols, &h_t, 1.0, Par::Seq);
+        for (t, column) in (0..indices.len()).map(|t| (t, c_cols.col_as_slice(t))) {
+            for r in 0..m {
+                let weight = h[(r, t)];
+                if weight != 0.0 {
+                    for (target, value) in pht.col_as_slice_mut(r).iter_mut().zip(column) {
+                        *target += weight * value;
+                    }
+                }
+            }
+        }
         let pht_t = DMatrix::from_fn(indices.len(), m, |a, b| pht[(indices[a], b)]);
         let s = h * pht_t + r;
         let s = 0.5 * (&s + s.transpose());
         let cholesky = s
             .cholesky()
             .ok_or_else(|| Error::Singular("innovation covariance S of an EKF update".into()))?;
-        let l = to_faer(&cholesky.l());
-        // W^T = L^{-1} (C H^T)^T, solved in place (m x n right-hand side).
-        let mut w_t = pht.transpose().to_owned();
-        solve_lower_triangular_in_place(l.as_ref(), w_t.as_mut(), Par::Seq);
-        let w = w_t.transpose().to_owned();
-        let mut whitened = Mat::<f64>::from_fn(m, 1, |i, _| eta[i]);
-        solve_lower_triangular_in_place(l.as_ref(), whitened.as_mut(), Par::Seq);
+        // W = C H^T L^{-T}, with L^{-1} by forward substitution (m^3 / 6 operations, small)
+        // and the n x m x m product in faer.
+        let l_inv = lower_triangular_inverse(&cholesky.l())
+            .ok_or_else(|| Error::Singular("Cholesky factor of S".into()))?;
+        let mut w = Mat::<f64>::zeros(n, m);
+        matmul(
+            &mut w,
+            Accum::Replace,
+            &pht,
+            &to_faer(&l_inv.transpose()),
+            1.0,
+            Par::Seq,
+        );
+        let whitened = &l_inv * eta;
         let mut dx = DVector::zeros(n);
         for (i, value) in dx.iter_mut().enumerate() {
-            *value = -(0..m).map(|k| w_t[(k, i)] * whitened[(k, 0)]).sum::<f64>();
+            *value = -(0..m).map(|k| w[(i, k)] * whitened[k]).sum::<f64>();
         }
         if !dx.iter().all(|v| v.is_finite()) {
             return Err(Error::NonFinite("EKF state change".into()));
@@ -340,6 +356,28 @@ pub(crate) struct PreparedUpdate {
     w: Mat<f64>,
     /// The state change `dx` (eq. 31).
     pub(crate) dx: DVector<f64>,
+}
+
+/// The inverse of a lower-triangular matrix by forward substitution, `None` when a diagonal
+/// entry is zero.
+fn lower_triangular_inverse(l: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let m = l.nrows();
+    let mut inverse = DMatrix::zeros(m, m);
+    for j in 0..m {
+        // Column j of L^{-1}: solve L x = e_j; x_i = 0 for i < j.
+        for i in j..m {
+            let mut sum = if i == j { 1.0 } else { 0.0 };
+            for k in j..i {
+                sum -= l[(i, k)] * inverse[(k, j)];
+            }
+            let diagonal = l[(i, i)];
+            if diagonal == 0.0 {
+                return None;
+            }
+            inverse[(i, j)] = sum / diagonal;
+        }
+    }
+    Some(inverse)
 }
 
 /// A faer copy of a small nalgebra matrix.

@@ -76,6 +76,8 @@ pub struct Study {
     pub ate_rmse_mean_m: f64,
     /// Mean map error over the runs (m).
     pub map_error_mean_m: f64,
+    /// Per run: `(seed, mean pose NEES, ATE m)`.
+    pub per_run: Vec<(u64, f64, Option<f64>)>,
     /// `(time, average NEES)` per step.
     #[serde(skip)]
     pub series: Vec<(f64, f64)>,
@@ -144,9 +146,14 @@ fn study(config: &Config, seeds: &[u64], band: (f64, f64), quiet: bool) -> Study
     bar.finish_and_clear();
     let mut failures = Vec::new();
     let mut ok = Vec::new();
+    let mut per_run = Vec::new();
     for (seed, outcome) in outcomes {
         match outcome {
-            Ok(o) => ok.push(o),
+            Ok(o) => {
+                let mean = o.nees.iter().map(|(_, n)| n).sum::<f64>() / o.nees.len().max(1) as f64;
+                per_run.push((seed, mean, o.ate_rmse_m));
+                ok.push(o);
+            }
             Err(e) => failures.push((seed, e.to_string())),
         }
     }
@@ -185,6 +192,7 @@ fn study(config: &Config, seeds: &[u64], band: (f64, f64), quiet: bool) -> Study
         median_nees: sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN),
         ate_rmse_mean_m: mean(&ates),
         map_error_mean_m: mean(&maps),
+        per_run,
         series,
     }
 }

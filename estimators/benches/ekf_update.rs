@@ -11,7 +11,8 @@
 //! with 16 observations of known landmarks (the rb2d benchmark's typical step). The state
 //! size stays constant because every landmark is already in the state; consecutive
 //! iterations cycle through the landmarks 16 at a time. The `ekf_predict` group times the
-//! prediction alone, to show its share.
+//! prediction alone, to show its share, and `downdate_reference` times the covariance
+//! downdate `C -= W W^T` alone (faer, lower triangle), the O(n^2) core of the update.
 //!
 //! ```sh
 //! CARGO_TARGET_DIR=/work/target-bench cargo bench -p slam-estimators --bench ekf_update
@@ -22,6 +23,8 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, SamplingMode, criterion_group, criterion_main};
+use faer::linalg::matmul::triangular::{self, BlockStructure};
+use faer::{Accum, Par};
 use slam_core::nalgebra::DMatrix;
 use slam_core::{Estimator, Feature, Observation, Pose2, Pose3, downcast_feature};
 use slam_estimators::{Ekf, EkfParams};
@@ -125,25 +128,29 @@ fn steps(n: usize) -> Vec<Vec<Observation>> {
         .collect()
 }
 
-/// Times predict + update pairs on `ekf` (its state size must not change).
-fn time_step(
-    group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
-    n: usize,
-    ekf: &mut Ekf<Pose2>,
-) {
-    let steps = steps(n);
-    let motion = still();
-    let dim = ekf.state_dim();
-    // One untimed step to check that all 16 observations are used.
-    ekf.predict(&motion).expect("prediction");
-    let report = ekf.update(&steps[0]).expect("update");
+/// A prepared filter with one untimed step checked: all 16 observations are used.
+fn checked_filter(n: usize, params: EkfParams) -> Ekf<Pose2> {
+    let mut ekf = prepared_filter(n, params);
+    ekf.predict(&still()).expect("prediction");
+    let report = ekf.update(&steps(n)[0]).expect("update");
     assert_eq!(
         (report.associated, report.new_features, report.rejected),
         (PER_UPDATE, 0, 0),
         "n = {n}: {report:?}"
     );
+    ekf
+}
+
+type Group<'a> = criterion::BenchmarkGroup<'a, criterion::measurement::WallTime>;
+
+/// Times predict + update pairs on the filter of `n` landmarks, built on first use (so that
+/// a filter on the command line skips building the others) and kept in `slot`.
+fn time_step(group: &mut Group<'_>, n: usize, params: &EkfParams, slot: &mut Option<Ekf<Pose2>>) {
+    let steps = steps(n);
+    let motion = still();
     let mut k = 1;
-    group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
+    group.bench_function(BenchmarkId::from_parameter(n), |b| {
+        let ekf = slot.get_or_insert_with(|| checked_filter(n, params.clone()));
         b.iter(|| {
             ekf.predict(&motion).expect("prediction");
             let report = ekf.update(&steps[k % steps.len()]).expect("update");
@@ -151,10 +158,16 @@ fn time_step(
             black_box(report)
         });
     });
-    assert_eq!(ekf.state_dim(), dim, "the state size changed while timing");
+    if let Some(ekf) = slot {
+        assert_eq!(
+            ekf.state_dim(),
+            3 + 2 * n,
+            "the state size changed while timing"
+        );
+    }
 }
 
-fn configure(group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>) {
+fn configure(group: &mut Group<'_>) {
     group
         .sampling_mode(SamplingMode::Flat)
         .sample_size(30)
@@ -163,14 +176,12 @@ fn configure(group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::W
 }
 
 fn benches(c: &mut Criterion) {
-    let mut filters = Vec::new();
+    let mut filters: Vec<(usize, Option<Ekf<Pose2>>)> = SIZES.iter().map(|&n| (n, None)).collect();
 
     let mut group = c.benchmark_group("ekf_update");
     configure(&mut group);
-    for n in SIZES {
-        let mut ekf = prepared_filter(n, EkfParams::default());
-        time_step(&mut group, n, &mut ekf);
-        filters.push((n, ekf));
+    for (n, slot) in &mut filters {
+        time_step(&mut group, *n, &EkfParams::default(), slot);
     }
     group.finish();
 
@@ -181,17 +192,57 @@ fn benches(c: &mut Criterion) {
         ..Default::default()
     };
     for n in SIZES_NO_OC {
-        let mut ekf = prepared_filter(n, params.clone());
-        time_step(&mut group, n, &mut ekf);
+        time_step(&mut group, n, &params, &mut None);
     }
     group.finish();
 
     let mut group = c.benchmark_group("ekf_predict");
     configure(&mut group);
     let motion = still();
-    for (n, ekf) in &mut filters {
-        group.bench_with_input(BenchmarkId::from_parameter(*n), n, |b, _| {
+    for (n, slot) in &mut filters {
+        group.bench_function(BenchmarkId::from_parameter(*n), |b| {
+            let ekf = slot.get_or_insert_with(|| checked_filter(*n, EkfParams::default()));
             b.iter(|| ekf.predict(black_box(&motion)).expect("prediction"));
+        });
+    }
+    group.finish();
+
+    // Reference: the covariance downdate alone, as `StateCovariance::commit` does it
+    // (faer's lower-triangular `C -= W W^T`, sequential), to compare with the full update
+    // and with the memory-bandwidth figure of DEPENDENCIES.md (n = 3000, m = 2).
+    let mut group = c.benchmark_group("downdate_reference");
+    configure(&mut group);
+    let step_m = 2 * PER_UPDATE;
+    for (rows, m) in [
+        (3000, 2),
+        (4003, 2),
+        (1003, step_m),
+        (2003, step_m),
+        (4003, step_m),
+    ] {
+        let label = format!("rows{rows}_m{m}");
+        // Built on first use and kept: criterion calls the closure once per sample.
+        let mut data = None;
+        group.bench_function(BenchmarkId::from_parameter(label), |b| {
+            let (lower, w) = data.get_or_insert_with(|| {
+                let lower = faer::Mat::<f64>::zeros(rows, rows);
+                let w = faer::Mat::<f64>::from_fn(rows, m, |i, j| 1e-3 * noise((i * m + j) as u64));
+                (lower, w)
+            });
+            b.iter(|| {
+                triangular::matmul(
+                    &mut *lower,
+                    BlockStructure::TriangularLower,
+                    Accum::Add,
+                    &*w,
+                    BlockStructure::Rectangular,
+                    w.transpose(),
+                    BlockStructure::Rectangular,
+                    -1.0,
+                    Par::Seq,
+                );
+            });
+            black_box(&*lower);
         });
     }
     group.finish();

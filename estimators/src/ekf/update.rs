@@ -17,8 +17,10 @@ use super::{
 /// Largest `|B (x_new - x_old)|` accepted for a change outside the M-space.
 const OUTSIDE_MSPACE_TOLERANCE: f64 = 1e-6;
 
-/// Variance of the constraint that makes two blocks one corner (a near-perfect measurement).
-const JOIN_CONSTRAINT_VARIANCE: f64 = 1e-12;
+/// Variance of the constraint that makes two blocks one corner, m^2 (1 cm). Tight, but not
+/// perfect: the constraint is projected like every other measurement to observe no world
+/// motion, and with a perfect constraint that small change of direction gave metre jumps.
+const JOIN_CONSTRAINT_VARIANCE: f64 = 1e-4;
 
 impl<P: RobotPose> Ekf<P> {
     /// Carries out the decisions of one step (see the module documentation).

@@ -108,12 +108,13 @@ fn one_run(config: &Config, seed: u64) -> Result<RunOutcome> {
         )));
     }
     let loaded = spec.load_with(seed, &config.data.reader_options())?;
-    let sigma = crate::run::sigma_range(config, &loaded)?;
+    let (sigma, factor) = crate::run::sigma_range(config, &loaded)?;
     let truth_map = loaded.truth.clone();
     let result = pipeline::run(
         config,
         loaded.dataset,
         sigma,
+        factor,
         &indicatif::ProgressBar::hidden(),
     )?;
     let trajectory = trajectory_errors(&result)?;

@@ -34,13 +34,17 @@ pub struct Frontend {
     lines: LineExtractorParams,
     poles: PoleExtractorParams,
     sigma_range: f64,
+    /// Factor on the deviations of what the extractors find.
+    noise_factor: f64,
     /// What it produced so far.
     pub counts: FrontendCounts,
 }
 
 impl Frontend {
-    /// A front-end with the range noise `sigma_range` (m).
-    pub fn new(config: &FrontendConfig, sigma_range: f64) -> Self {
+    /// A front-end for a laser with range noise `sigma_range` (m), whose extracted features'
+    /// deviations are multiplied by `noise_factor` (the extractors decide what is a wall or a
+    /// pole with the laser's own noise).
+    pub fn new(config: &FrontendConfig, sigma_range: f64, noise_factor: f64) -> Self {
         Frontend {
             lines: LineExtractorParams {
                 sigma_range,
@@ -52,6 +56,7 @@ impl Frontend {
             },
             config: config.clone(),
             sigma_range,
+            noise_factor,
             counts: FrontendCounts::default(),
         }
     }
@@ -69,15 +74,18 @@ impl Frontend {
             landmark_id: None,
         };
         if self.config.walls {
-            for segment in extract_segments(scan, &self.lines) {
+            let f = self.noise_factor;
+            for mut segment in extract_segments(scan, &self.lines) {
+                segment.cov *= f * f;
+                segment.end_spacing = segment.end_spacing.map(|s| s * f);
                 let measurement: Option<Box<dyn slam_core::DynMeasurementModel>> =
                     match self.config.wall_representation {
                         WallRepresentation::Mspace => segment
-                            .to_observation(self.sigma_range)
+                            .to_observation(self.sigma_range * f)
                             .ok()
                             .map(|o| Box::new(o) as _),
                         WallRepresentation::Endpoints => segment
-                            .to_observation(self.sigma_range)
+                            .to_observation(self.sigma_range * f)
                             .ok()
                             .and_then(|o| {
                                 slam_examples::EndpointWallObservation::new(
@@ -98,8 +106,9 @@ impl Frontend {
             }
         }
         if self.config.poles {
-            for pole in extract_poles(scan, &self.poles) {
-                match pole.to_observation(self.config.pole_sigma_floor) {
+            for mut pole in extract_poles(scan, &self.poles) {
+                pole.cov *= self.noise_factor * self.noise_factor;
+                match pole.to_observation(self.config.pole_sigma_floor * self.noise_factor) {
                     Ok(o) => {
                         self.counts.poles += 1;
                         out.push(observation(Box::new(o)));

@@ -98,11 +98,12 @@ pub fn progress_bar(len: usize, quiet: bool) -> ProgressBar {
 }
 
 /// Runs the configured estimator over `dataset`; `sigma_range` is the laser noise the
-/// front-end assumes.
+/// front-end assumes and `noise_factor` inflates the deviations of what it extracts.
 pub fn run(
     config: &Config,
     dataset: Dataset,
     sigma_range: f64,
+    noise_factor: f64,
     progress: &ProgressBar,
 ) -> Result<RunResult> {
     let start = initial_pose(&dataset);
@@ -113,7 +114,7 @@ pub fn run(
         st * st,
     ));
     let mut estimator = make_estimator(&config.estimator, start, covariance)?;
-    let mut frontend = Frontend::new(&config.frontend, sigma_range);
+    let mut frontend = Frontend::new(&config.frontend, sigma_range, noise_factor);
     let mut estimates = Vec::new();
     let mut truth = Vec::new();
     let mut gps = Vec::new();

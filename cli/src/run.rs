@@ -94,7 +94,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
 pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
     let spec: DataSpec = config.data.spec.parse()?;
     let loaded = spec.load_with(config.data.seed, &config.data.reader_options())?;
-    let sigma_range = sigma_range(config, &loaded)?;
+    let (sigma_range, noise_factor) = sigma_range(config, &loaded)?;
     let Loaded {
         dataset,
         truth: truth_map,
@@ -103,7 +103,7 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
     let name = dataset.name.clone();
     let landmarks = dataset.landmarks.clone();
     let bar = progress_bar(dataset.events.len(), quiet);
-    let result = pipeline::run(config, dataset, sigma_range, &bar)?;
+    let result = pipeline::run(config, dataset, sigma_range, noise_factor, &bar)?;
 
     let estimator = result.estimator.as_ref();
     let trajectory = trajectory_errors(&result)?;
@@ -199,21 +199,21 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
     ))
 }
 
-/// The range noise the front-end assumes: the config's, else the simulated laser's times
-/// the configured factor, else 3 cm.
-pub fn sigma_range(config: &Config, loaded: &Loaded) -> Result<f64> {
-    let sigma = config
-        .frontend
-        .sigma_range
-        .or(loaded
-            .laser_sigma_range
-            .map(|s| s * config.frontend.simulated_noise_factor))
-        .unwrap_or(0.03);
-    if sigma.is_finite() && sigma > 0.0 {
-        Ok(sigma)
+/// The laser's range noise the front-end assumes, and the factor by which the covariances of
+/// what it extracts are inflated: the config's `sigma_range` (factor 1), else a simulated
+/// laser's noise with the configured `simulated_noise_factor`, else 3 cm (factor 1).
+pub fn sigma_range(config: &Config, loaded: &Loaded) -> Result<(f64, f64)> {
+    let (sigma, factor) = match (config.frontend.sigma_range, loaded.laser_sigma_range) {
+        (Some(sigma), _) => (sigma, 1.0),
+        (None, Some(sigma)) => (sigma, config.frontend.simulated_noise_factor),
+        (None, None) => (0.03, 1.0),
+    };
+    if sigma.is_finite() && sigma > 0.0 && factor.is_finite() && factor > 0.0 {
+        Ok((sigma, factor))
     } else {
         Err(CliError::Usage(format!(
-            "[frontend] sigma_range must be positive, got {sigma}"
+            "[frontend] sigma_range and simulated_noise_factor must be positive, got {sigma} and \
+             {factor}"
         )))
     }
 }

@@ -223,12 +223,12 @@ impl EndpointWallObservation {
         };
         let mut rows = Vec::new();
         if self.segment.real[to_start] {
-            rows.push((0, to_start, self.segment.sigma_endpoint));
+            rows.push((0, to_start, self.segment.sigma_endpoints[to_start]));
         } else if t.dot(&(q[to_start] - s)) < 0.0 {
             rows.push((0, to_start, self.sigma_along));
         }
         if self.segment.real[to_end] {
-            rows.push((1, to_end, self.segment.sigma_endpoint));
+            rows.push((1, to_end, self.segment.sigma_endpoints[to_end]));
         } else if t.dot(&(q[to_end] - e)) > 0.0 {
             rows.push((1, to_end, self.sigma_along));
         }

@@ -209,7 +209,7 @@ impl Feature for Point {
                 }
             }
         }
-        self.coordinates = Coordinates::new(vec![CoordBlock::Point3(position)])?;
-        Ok(())
+        slam_core::ensure_finite(position.as_slice(), "point after perturbation")?;
+        self.coordinates.set_block(0, CoordBlock::Point3(position))
     }
 }

@@ -89,7 +89,7 @@ proptest! {
         let ends: Vec<Vector2<f64>> = seen.blocks().iter().map(|b| Vector2::from_column_slice(b.as_slice())).collect();
         let shift = Vector2::new(noise, -noise);
         let z = WallObservation::from_segment(
-            ends[1] + shift, ends[0] + shift, Matrix2::new(1e-4, 0.0, 0.0, 4e-4), [real_a, real_b], 0.05,
+            ends[1] + shift, ends[0] + shift, Matrix2::new(1e-4, 0.0, 0.0, 4e-4), [real_a, real_b], [0.05, 0.07],
         ).unwrap();
         check(&z, &wall, &robot, &mount)?;
     }
@@ -253,7 +253,7 @@ fn wall_endpoints_reveal_subspaces_and_feed_a_cornered_map() {
         Vector2::new(3.0, 2.0),
         Matrix2::new(1e-4, 0.0, 0.0, 1e-4),
         [true, false],
-        0.03,
+        [0.03, 0.03],
     )
     .unwrap();
     let seen = in_sensor(&wall, &robot, &mount);

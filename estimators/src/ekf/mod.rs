@@ -172,8 +172,6 @@ struct Track<P> {
     views: Vec<View<P>>,
     /// The data's landmark id, when known.
     landmark_id: Option<u64>,
-    /// Axis-aligned bounding box of the feature's horizontal coordinates.
-    bbox: BoundingBox,
 }
 
 impl<P> Default for Track<P> {
@@ -184,7 +182,6 @@ impl<P> Default for Track<P> {
             revealed: BTreeMap::new(),
             views: Vec::new(),
             landmark_id: None,
-            bbox: BoundingBox::default(),
         }
     }
 }
@@ -329,9 +326,11 @@ impl<P: RobotPose> Ekf<P> {
 
     /// Whether feature `id` has rows in the state (it is no longer tentative).
     pub fn is_confirmed(&self, id: FeatureId) -> bool {
-        self.map
-            .row_owners(id)
-            .is_ok_and(|owners| !owners.is_empty())
+        self.rows.contains_key(&RowOwner::Feature(id))
+            || self
+                .map
+                .links(id)
+                .is_ok_and(|links| links.iter().any(Option::is_some))
     }
 
     /// The whole state covariance (pose rows first); for tests and small maps.
@@ -421,9 +420,9 @@ impl<P: RobotPose> Ekf<P> {
             if !measurement.accepts(feature) {
                 continue;
             }
-            let track = self.tracks.get(&id);
-            if let (Some(near), Some(track)) = (&near, track)
-                && !track.bbox.near(near, self.params.association_margin)
+            if let Some(near) = &near
+                && !BoundingBox::of(feature.coordinates())
+                    .near(near, self.params.association_margin)
             {
                 continue;
             }

@@ -176,17 +176,7 @@ impl<P: RobotPose> Ekf<P> {
             .collect();
         self.map.apply(&perturbations)?;
         self.pose = pose;
-        let ids: Vec<FeatureId> = self.tracks.keys().copied().collect();
-        for id in ids {
-            self.refresh_bbox(id);
-        }
         Ok(())
-    }
-
-    fn refresh_bbox(&mut self, id: FeatureId) {
-        if let (Ok(feature), Some(track)) = (self.map.get(id), self.tracks.get_mut(&id)) {
-            track.bbox = BoundingBox::of(feature.coordinates());
-        }
     }
 
     /// The feature `observation` would start, placed from the current pose.
@@ -198,13 +188,11 @@ impl<P: RobotPose> Ekf<P> {
         else {
             return Ok(None);
         };
-        let bbox = BoundingBox::of(feature.coordinates());
         let id = self.map.insert(feature)?;
         self.tracks.insert(
             id,
             Track {
                 landmark_id: observation.landmark_id,
-                bbox,
                 ..Track::default()
             },
         );
@@ -327,7 +315,6 @@ impl<P: RobotPose> Ekf<P> {
         {
             track.views.clear();
         }
-        self.refresh_bbox(id);
         Ok(true)
     }
 
@@ -486,7 +473,6 @@ impl<P: RobotPose> Ekf<P> {
             }
             self.cov.transform_rows(&rows, &transform.matrix)?;
         }
-        self.refresh_bbox(id);
         Ok(())
     }
 
@@ -552,11 +538,7 @@ impl<P: RobotPose> Ekf<P> {
                 .map
                 .iter()
                 .filter(|(other, _)| *other != id && self.is_confirmed(*other))
-                .filter(|(other, _)| {
-                    self.tracks
-                        .get(other)
-                        .is_some_and(|t| t.bbox.near(&here, corner_distance))
-                })
+                .filter(|(_, f)| BoundingBox::of(f.coordinates()).near(&here, corner_distance))
                 .flat_map(|(other, f)| {
                     f.shareable_blocks()
                         .into_iter()
@@ -674,8 +656,6 @@ impl<P: RobotPose> Ekf<P> {
                 .insert(RowOwner::Feature(g), new_rows(dim + nf, ng)?);
         }
         self.corners_joined += 1;
-        self.refresh_bbox(f);
-        self.refresh_bbox(g);
         Ok(true)
     }
 

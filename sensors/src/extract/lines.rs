@@ -88,16 +88,14 @@ impl ExtractedSegment {
     /// The [`WallObservation`] of this segment; each end's deviation along the wall is the
     /// larger of the range noise and the spacing of the points there.
     pub fn to_observation(&self, sigma_range: f64) -> slam_core::Result<WallObservation> {
-        let sigma_endpoint = self.end_spacing[0]
-            .max(self.end_spacing[1])
-            .max(sigma_range);
+        let sigma_endpoints = self.end_spacing.map(|s| s.max(sigma_range));
         WallObservation::new(
             self.alpha,
             self.rho,
             self.cov,
             self.ends,
             self.real,
-            sigma_endpoint,
+            sigma_endpoints,
         )
     }
 }

@@ -40,27 +40,32 @@ pub struct WallObservation {
     pub endpoints: [Vector2<f64>; 2],
     /// Whether each end is a real end of the wall.
     pub real: [bool; 2],
-    /// Standard deviation of an endpoint's position (isotropic), m.
-    pub sigma_endpoint: f64,
+    /// Standard deviation of each endpoint's position (isotropic), in scan order, m.
+    pub sigma_endpoints: [f64; 2],
 }
 
 impl WallObservation {
     /// A wall observation; values finite, `rho >= 0`, covariance symmetric with a positive
-    /// diagonal, `sigma_endpoint > 0`.
+    /// diagonal, `sigma_endpoints > 0`.
     pub fn new(
         alpha: f64,
         rho: f64,
         line_cov: Matrix2<f64>,
         endpoints: [Vector2<f64>; 2],
         real: [bool; 2],
-        sigma_endpoint: f64,
+        sigma_endpoints: [f64; 2],
     ) -> Result<Self> {
         ensure_finite(&[alpha, rho], "wall line")?;
         ensure_finite(line_cov.as_slice(), "wall line covariance")?;
         ensure_finite(endpoints[0].as_slice(), "wall endpoint")?;
         ensure_finite(endpoints[1].as_slice(), "wall endpoint")?;
         check_sigmas(
-            &[sigma_endpoint, line_cov[(0, 0)], line_cov[(1, 1)]],
+            &[
+                sigma_endpoints[0],
+                sigma_endpoints[1],
+                line_cov[(0, 0)],
+                line_cov[(1, 1)],
+            ],
             "wall observation",
         )?;
         if rho < 0.0 || (line_cov[(0, 1)] - line_cov[(1, 0)]).abs() > 1e-12 * line_cov.amax() {
@@ -74,7 +79,7 @@ impl WallObservation {
             line_cov,
             endpoints,
             real,
-            sigma_endpoint,
+            sigma_endpoints,
         })
     }
 
@@ -85,7 +90,7 @@ impl WallObservation {
         b: Vector2<f64>,
         line_cov: Matrix2<f64>,
         real: [bool; 2],
-        sigma_endpoint: f64,
+        sigma_endpoints: [f64; 2],
     ) -> Result<Self> {
         let d = b - a;
         if d.norm() < Wall::MIN_LENGTH {
@@ -101,7 +106,7 @@ impl WallObservation {
             line_cov,
             [a, b],
             real,
-            sigma_endpoint,
+            sigma_endpoints,
         )
     }
 
@@ -217,7 +222,8 @@ impl MeasurementModel for WallObservation {
         let mut cov_v = DMatrix::zeros(6, 6);
         cov_v.view_mut((0, 0), (2, 2)).copy_from(&self.line_cov);
         for k in 2..6 {
-            cov_v[(k, k)] = self.sigma_endpoint * self.sigma_endpoint;
+            let sigma = self.sigma_endpoints[(k - 2) / 2];
+            cov_v[(k, k)] = sigma * sigma;
         }
         Ok(Innovation {
             eta,
@@ -246,7 +252,7 @@ impl MeasurementModel for WallObservation {
             self.line_cov,
             [Vector2::new(v[2], v[3]), Vector2::new(v[4], v[5])],
             self.real,
-            self.sigma_endpoint,
+            self.sigma_endpoints,
         )
     }
 

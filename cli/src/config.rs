@@ -136,6 +136,9 @@ pub struct FrontendConfig {
     /// detections). Default (absent): only when the data hold no raw scans or images, since
     /// a simulated world's range-bearing stream sees the same poles the laser does.
     pub landmarks: Option<bool>,
+    /// Drop the landmark ids the data give, so that the estimator associates the given
+    /// observations itself (to test association on data with known ids).
+    pub ignore_landmark_ids: bool,
     /// How walls are represented.
     pub wall_representation: WallRepresentation,
     /// Standard deviation along the wall of an endpoint not seen as a real end, for the
@@ -171,6 +174,7 @@ impl Default for FrontendConfig {
             poles: true,
             camera: true,
             landmarks: None,
+            ignore_landmark_ids: false,
             wall_representation: WallRepresentation::Mspace,
             endpoint_sigma_along_wall: 1.0,
             sigma_range: None,

@@ -151,7 +151,14 @@ pub fn run(
                 camera,
                 robot_from_sensor,
             } => frontend.image_observations(&image, &camera, &robot_from_sensor)?,
-            Event::Observations(observations) if use_given => observations,
+            Event::Observations(mut observations) if use_given => {
+                if config.frontend.ignore_landmark_ids {
+                    for o in &mut observations {
+                        o.landmark_id = None;
+                    }
+                }
+                observations
+            }
             Event::Observations(_) => Vec::new(),
             Event::GroundTruth { pose, kind } => {
                 truth.push((time, pose, kind));

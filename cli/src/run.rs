@@ -388,4 +388,34 @@ mod tests {
         assert!(nees < 1.5, "pose NEES per dof {nees}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
+
+    #[test]
+    fn both_association_rules_map_unlabelled_landmarks() {
+        // The rb2d circle log without its landmark ids: 50 landmarks must come out as about 50
+        // features, with the trajectory as accurate as with known ids.
+        let world = Path::new(env!("CARGO_MANIFEST_DIR")).join("../worlds/rb2d-circle.toml");
+        for association in ["nearest-neighbour", "jcbb"] {
+            let dir = temp_dir(association);
+            let text = format!(
+                "[data]\nspec = \"world:{}\"\n[estimator]\ntype = \"ekf\"\nassociation = \"{association}\"\n\
+                 confirm_after = 2\n[frontend]\nignore_landmark_ids = true\n[output]\nplots = false\ndir = \"{}\"\n",
+                world.display(),
+                dir.join("out").display()
+            );
+            let config = Config::from_toml(&text, "test").unwrap();
+            run_config(&config, true).unwrap();
+            let metrics: serde_json::Value = serde_json::from_str(
+                &std::fs::read_to_string(dir.join("out/metrics.json")).unwrap(),
+            )
+            .unwrap();
+            let ate = metrics["ate_rmse_m"].as_f64().unwrap();
+            let points = metrics["features"]["point"]["2"].as_u64().unwrap_or(0);
+            assert!(ate < 0.05, "{association}: ATE {ate}");
+            assert!(
+                (45..=56).contains(&points),
+                "{association}: {points} landmarks"
+            );
+            std::fs::remove_dir_all(&dir).unwrap();
+        }
+    }
 }

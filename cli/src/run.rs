@@ -24,7 +24,7 @@ pub struct RunArgs {
     /// Configuration file (TOML, see `slam run --help`); every setting has a default.
     pub config: Option<PathBuf>,
     /// Data: sim (the built-in world), world:FILE, carmen:FILE, victoria-park:DIR,
-    /// mrclam:DIR[:ROBOT], rb2d:FILE. Overrides the config's `[data] spec`.
+    /// mrclam:DIR or mrclam:DIR:ROBOT, rb2d:FILE. Overrides the config's `[data] spec`.
     #[arg(long)]
     pub data: Option<String>,
     /// Output folder. Overrides the config's `[output] dir` (default `slam-out`).

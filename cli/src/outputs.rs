@@ -186,14 +186,19 @@ pub fn chi_square_summary(values: &[(f64, usize)]) -> Result<ChiSquareSummary> {
     })
 }
 
-/// The robot-pose NEES at every estimate that has a true pose at the same time.
-pub fn pose_nees(result: &RunResult) -> Vec<(f64, f64)> {
-    let truth: BTreeMap<u64, Pose2> = result
+/// The independent true poses of a run, by the bits of their time.
+fn true_poses(result: &RunResult) -> BTreeMap<u64, Pose2> {
+    result
         .truth
         .iter()
         .filter(|(_, _, kind)| *kind == TruthKind::True)
         .map(|(t, p, _)| (t.to_bits(), *p))
-        .collect();
+        .collect()
+}
+
+/// The robot-pose NEES at every estimate that has a true pose at the same time.
+pub fn pose_nees(result: &RunResult) -> Vec<(f64, f64)> {
+    let truth = true_poses(result);
     result
         .estimates
         .iter()
@@ -534,12 +539,7 @@ pub fn trajectory_errors(result: &RunResult) -> Result<Option<TrajectoryErrors>>
 /// NEES where the data have true poses.
 pub fn estimates_csv(result: &RunResult) -> String {
     use std::fmt::Write as _;
-    let truth: BTreeMap<u64, Pose2> = result
-        .truth
-        .iter()
-        .filter(|(_, _, kind)| *kind == TruthKind::True)
-        .map(|(t, p, _)| (t.to_bits(), *p))
-        .collect();
+    let truth = true_poses(result);
     let nees: BTreeMap<u64, f64> = pose_nees(result)
         .into_iter()
         .map(|(t, n)| (t.to_bits(), n))

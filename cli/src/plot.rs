@@ -192,13 +192,13 @@ impl Figure {
         (lo.x - margin, hi.x + margin, lo.y - margin, hi.y + margin)
     }
 
-    /// Writes the figure as PNG or SVG (by the file's extension), completely or not at all:
-    /// it is drawn to a temporary file beside the target and renamed into place.
+    /// Writes the figure as PNG or SVG (by the file's extension), completely or not at all.
     pub fn save(&self, path: &Path) -> Result<()> {
-        let error = |message: String| CliError::Output {
-            path: path.display().to_string(),
-            message,
-        };
+        save_drawing(self, path)
+    }
+
+    /// The pixel size and the header height for the data's aspect ratio.
+    fn layout(&self) -> ((u32, u32), u32) {
         let (x0, x1, y0, y1) = self.bounds();
         let header = if font_available() { 40 } else { 10 };
         let plot_width = self.width.saturating_sub(70).max(100);
@@ -207,28 +207,7 @@ impl Figure {
             .clamp(100.0, 8000.0) as u32
             + header
             + 50;
-        let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-        let temporary = path.with_extension(format!("partial.{extension}"));
-        let result = match extension {
-            "svg" => {
-                let root = SVGBackend::new(&temporary, (self.width, height)).into_drawing_area();
-                self.draw(&root, (x0, x1, y0, y1), header)
-            }
-            "png" => {
-                let root = BitMapBackend::new(&temporary, (self.width, height)).into_drawing_area();
-                self.draw(&root, (x0, x1, y0, y1), header)
-            }
-            other => {
-                return Err(error(format!(
-                    "unknown image format `{other}` (use .png or .svg)"
-                )));
-            }
-        };
-        if let Err(message) = result {
-            let _ = std::fs::remove_file(&temporary);
-            return Err(error(message));
-        }
-        std::fs::rename(&temporary, path).map_err(|e| error(e.to_string()))
+        ((self.width, height), header)
     }
 
     fn draw<DB: DrawingBackend>(
@@ -384,6 +363,56 @@ fn font_available() -> bool {
     })
 }
 
+/// Something drawn to an image file by [`save_drawing`].
+trait Drawing {
+    /// The image size in pixels.
+    fn size(&self) -> (u32, u32);
+    /// Draws onto `root`.
+    fn render<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, plotters::coord::Shift>,
+    ) -> std::result::Result<(), String>;
+}
+
+impl Drawing for Figure {
+    fn size(&self) -> (u32, u32) {
+        self.layout().0
+    }
+
+    fn render<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, plotters::coord::Shift>,
+    ) -> std::result::Result<(), String> {
+        self.draw(root, self.bounds(), self.layout().1)
+    }
+}
+
+/// Writes a drawing as PNG or SVG (by the file's extension), completely or not at all: it is
+/// drawn to a temporary file beside the target and renamed into place.
+fn save_drawing(drawing: &impl Drawing, path: &Path) -> Result<()> {
+    let error = |message: String| CliError::Output {
+        path: path.display().to_string(),
+        message,
+    };
+    let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    let temporary = path.with_extension(format!("partial.{extension}"));
+    let size = drawing.size();
+    let result = match extension {
+        "svg" => drawing.render(&SVGBackend::new(&temporary, size).into_drawing_area()),
+        "png" => drawing.render(&BitMapBackend::new(&temporary, size).into_drawing_area()),
+        other => {
+            return Err(error(format!(
+                "unknown image format `{other}` (use .png or .svg)"
+            )));
+        }
+    };
+    if let Err(message) = result {
+        let _ = std::fs::remove_file(&temporary);
+        return Err(error(message));
+    }
+    std::fs::rename(&temporary, path).map_err(|e| error(e.to_string()))
+}
+
 /// One line of a [`LineChart`].
 #[derive(Clone, Debug)]
 pub struct Series {
@@ -411,30 +440,23 @@ pub struct LineChart {
     pub band: Option<(f64, f64)>,
 }
 
+impl Drawing for LineChart {
+    fn size(&self) -> (u32, u32) {
+        (1400, 700)
+    }
+
+    fn render<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, plotters::coord::Shift>,
+    ) -> std::result::Result<(), String> {
+        self.draw(root)
+    }
+}
+
 impl LineChart {
     /// Writes the chart as PNG or SVG (by extension), completely or not at all.
     pub fn save(&self, path: &Path) -> Result<()> {
-        let error = |message: String| CliError::Output {
-            path: path.display().to_string(),
-            message,
-        };
-        let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-        let temporary = path.with_extension(format!("partial.{extension}"));
-        let size = (1400, 700);
-        let result = match extension {
-            "svg" => self.draw(&SVGBackend::new(&temporary, size).into_drawing_area()),
-            "png" => self.draw(&BitMapBackend::new(&temporary, size).into_drawing_area()),
-            other => {
-                return Err(error(format!(
-                    "unknown image format `{other}` (use .png or .svg)"
-                )));
-            }
-        };
-        if let Err(message) = result {
-            let _ = std::fs::remove_file(&temporary);
-            return Err(error(message));
-        }
-        std::fs::rename(&temporary, path).map_err(|e| error(e.to_string()))
+        save_drawing(self, path)
     }
 
     fn draw<DB: DrawingBackend>(

@@ -5,6 +5,8 @@
 //!
 //! - [`Ekf`]: the M-space EKF of the paper's section V, with feature lifecycle, data
 //!   association (nearest neighbour or JCBB), triangulation and shared corners.
+//! - [`em_polygon`]: polygonal approximation of registered laser points by split-and-merge
+//!   EM segment fitting (Latecki & Lakaemper 2006), a post-processing estimator.
 //!
 //! Errors are [`slam_core::Error`], the error of the [`slam_core::Estimator`] trait.
 
@@ -12,5 +14,7 @@
 
 mod covariance;
 pub mod ekf;
+pub mod em_polygon;
 
 pub use ekf::{Association, Ekf, EkfParams, pose_error};
+pub use em_polygon::{EmPolygonParams, PolygonMap, fit_polygons};

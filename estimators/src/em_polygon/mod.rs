@@ -1,0 +1,461 @@
+//! Polygonal approximation of registered laser points by split-and-merge EM segment fitting
+//! (SMEMSF; Latecki & Lakaemper, "Polygonal approximation of laser range data based on
+//! perceptual grouping and EM", ICRA 2006).
+//!
+//! A post-processing estimator: registered scan points in (scans placed by an estimator's
+//! trajectory or by poses a dataset gives), line segments and polylines out. Starting from
+//! the two diagonals of the points' bounding box, [`fit_polygons`] iterates
+//!
+//! 1. EMSF ([`emsf`], section II-A): E-step on point-to-segment distances, M-step by
+//!    weighted orthogonal regression (eq. 1), trimming to the support set;
+//! 2. LSS (section II-C): cut the segments into subsegments of length `2r`, remove those
+//!    whose square holds `<= C` points, keep the connected remainders;
+//! 3. EMSF again;
+//! 4. merge (section III) by the perceptual-grouping cost `2 parC + 1/4 colC + 1/2 proxC`,
+//!
+//! until the mean point-to-nearest-segment distance is stable, then orders the segments
+//! into polylines.
+//!
+//! **Scales chosen from the data at every iteration** (the paper computes `2r` and `C`
+//! "dynamically" without giving formulas; these are this implementation's choices):
+//!
+//! - `sigma`, the deviation of the E-step (`w_ij ~ exp(-d^2 / 2 sigma^2)`; the paper writes
+//!   it with `sigma = 1` in its units), is the robust spread of the point-to-nearest-segment
+//!   distances `d_i` of the current model, `1.4826 median_i d_i`, but at most
+//!   `sigma_shrink` (1/2) times the previous iteration's and at least `sigma_min`: large while
+//!   the model is poor (soft assignments), then annealed down to the noise of the points.
+//!   Without the shrinking, a poor model keeps a large `sigma`, hence a large `r`, and the
+//!   split never discriminates. The stop condition (the mean point-to-nearest-segment
+//!   distance changes by less than `tolerance`) is tested once `sigma` no longer shrinks.
+//! - `r = clamp(split_scale sigma, r_min, r_max)`: a square of side `2r` around a subsegment
+//!   then holds the points of a wall along it (they lie within about `2 sigma` of the line)
+//!   but few of a wall that crosses it.
+//! - `C = max(min_support, support_fraction * median of the positive subsegment supports)`:
+//!   a subsegment is kept when its square holds more than that fraction of the typical
+//!   support of a subsegment lying on structure.
+//!
+//! The E-step is not a dense points x segments loop: a grid over the segments gives each
+//! point its candidate segments (those within `sqrt(d_min^2 + (4 sigma)^2)`; farther ones
+//! have relative weights below `3.4e-4` and are taken as 0), and points are processed in
+//! parallel (rayon) in fixed chunks whose partial sums are added in order, so results do not
+//! depend on the number of threads.
+
+mod emsf;
+mod grid;
+mod merge;
+mod polyline;
+mod split;
+
+use serde::{Deserialize, Serialize};
+use slam_core::Error;
+use slam_core::nalgebra::Vector2;
+
+/// A line segment of the model, in the points' frame (metres).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Segment {
+    /// One end.
+    pub start: Vector2<f64>,
+    /// The other end.
+    pub end: Vector2<f64>,
+    /// Number of points in its support set at the last EMSF (0 when not yet fitted).
+    pub support: usize,
+}
+
+impl Segment {
+    /// A segment from `start` to `end` with no support yet.
+    pub fn new(start: Vector2<f64>, end: Vector2<f64>) -> Self {
+        Segment {
+            start,
+            end,
+            support: 0,
+        }
+    }
+
+    /// Length, m.
+    pub fn length(&self) -> f64 {
+        (self.end - self.start).norm()
+    }
+
+    /// Distance from `p` to the segment, m.
+    pub fn distance(&self, p: &Vector2<f64>) -> f64 {
+        grid::point_segment_distance_sq(p, &self.start, &self.end).sqrt()
+    }
+
+    fn is_finite(&self) -> bool {
+        self.start
+            .iter()
+            .chain(self.end.iter())
+            .all(|v| v.is_finite())
+    }
+}
+
+/// Segments joined end to end.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Polyline {
+    /// The segments in order, by index into [`PolygonMap::segments`], each with `true` when
+    /// it is walked from its end to its start.
+    pub segments: Vec<(usize, bool)>,
+    /// The vertices in order (one more than the segments for an open polyline, as many for a
+    /// closed one).
+    pub vertices: Vec<Vector2<f64>>,
+    /// Whether the last vertex joins the first.
+    pub closed: bool,
+}
+
+/// Settings of [`fit_polygons`]; `Default` gives the values used on the Radish indoor logs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EmPolygonParams {
+    /// Smallest E-step deviation `sigma`, m: about the noise of the registered points.
+    pub sigma_min: f64,
+    /// Points farther than `outlier_sigmas * sigma` from every segment are left out of the
+    /// M-step and of the support sets (`inf`: none is, as in the paper; without it a segment
+    /// is pulled and stretched over every point it is the nearest to, however far).
+    pub outlier_sigmas: f64,
+    /// `sigma` shrinks at least by this factor per iteration until it reaches `sigma_min`
+    /// (annealing).
+    pub sigma_shrink: f64,
+    /// The split half-length is `r = split_scale * sigma` ...
+    pub split_scale: f64,
+    /// ... bounded below by this, m ...
+    pub r_min: f64,
+    /// ... and above by this, m.
+    pub r_max: f64,
+    /// The support threshold `C` is this fraction of the median positive subsegment support
+    /// ...
+    pub support_fraction: f64,
+    /// ... and at least this many points.
+    pub min_support: f64,
+    /// Angle between two segments that alone gives the merge cost 1 (`2 parC = 1`), degrees.
+    /// Smaller values merge less.
+    pub merge_angle_deg: f64,
+    /// Largest number of iterations (EMSF, LSS, EMSF, merge).
+    pub max_iterations: usize,
+    /// Stop when the mean point-to-nearest-segment distance changes by less than this
+    /// fraction between two iterations.
+    pub tolerance: f64,
+    /// Segment ends closer than `join_scale * r` are joined into polylines.
+    pub join_scale: f64,
+}
+
+impl Default for EmPolygonParams {
+    fn default() -> Self {
+        EmPolygonParams {
+            sigma_min: 0.02,
+            sigma_shrink: 0.5,
+            outlier_sigmas: 3.0,
+            split_scale: 2.0,
+            r_min: 0.05,
+            r_max: 1.0,
+            support_fraction: 0.1,
+            min_support: 2.0,
+            merge_angle_deg: 20.0,
+            max_iterations: 30,
+            tolerance: 0.01,
+            join_scale: 2.0,
+        }
+    }
+}
+
+impl EmPolygonParams {
+    /// Checks every value's range.
+    pub fn validate(&self) -> Result<(), Error> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        let checks = [
+            (positive(self.sigma_min), "sigma_min > 0"),
+            (
+                positive(self.sigma_shrink) && self.sigma_shrink <= 1.0,
+                "sigma_shrink in (0, 1]",
+            ),
+            (self.outlier_sigmas > 0.0, "outlier_sigmas > 0"),
+            (positive(self.split_scale), "split_scale > 0"),
+            (positive(self.r_min), "r_min > 0"),
+            (
+                positive(self.r_max) && self.r_max >= self.r_min,
+                "r_max >= r_min",
+            ),
+            (
+                self.support_fraction.is_finite() && self.support_fraction >= 0.0,
+                "support_fraction >= 0",
+            ),
+            (
+                self.min_support.is_finite() && self.min_support >= 0.0,
+                "min_support >= 0",
+            ),
+            (
+                positive(self.merge_angle_deg) && self.merge_angle_deg <= 180.0,
+                "merge_angle_deg in (0, 180]",
+            ),
+            (self.max_iterations >= 1, "max_iterations >= 1"),
+            (
+                self.tolerance.is_finite() && self.tolerance >= 0.0,
+                "tolerance >= 0",
+            ),
+            (
+                self.join_scale.is_finite() && self.join_scale >= 0.0,
+                "join_scale >= 0",
+            ),
+        ];
+        match checks.iter().find(|(ok, _)| !ok) {
+            Some((_, what)) => Err(Error::InvalidArgument(format!(
+                "EM polygon parameters: {what} is required"
+            ))),
+            None => Ok(()),
+        }
+    }
+}
+
+/// What one iteration (EMSF, LSS, EMSF, merge) did.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct IterationStats {
+    /// E-step deviation `sigma`, m.
+    pub sigma: f64,
+    /// Split half-length `r`, m.
+    pub r: f64,
+    /// Support threshold `C`, points.
+    pub support_threshold: f64,
+    /// Subsegments examined and removed by the split.
+    pub subsegments: (usize, usize),
+    /// Segments after the split.
+    pub after_split: usize,
+    /// Merges done.
+    pub merges: usize,
+    /// Segments at the end of the iteration.
+    pub segments: usize,
+    /// Mean point-to-nearest-segment distance at the end of the iteration, m.
+    pub mean_distance: f64,
+}
+
+/// The result of [`fit_polygons`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PolygonMap {
+    /// The segments (joined ends moved onto their common polyline vertex).
+    pub segments: Vec<Segment>,
+    /// The segments ordered into polylines; every segment is in exactly one.
+    pub polylines: Vec<Polyline>,
+    /// Number of input points.
+    pub points: usize,
+    /// Mean distance of the points to their nearest segment, m (`None` without segments).
+    pub mean_distance: Option<f64>,
+    /// Median of the same distances, m.
+    pub median_distance: Option<f64>,
+    /// Points per segment endpoint, `points / (2 segments)` (the paper's compression ratio).
+    pub compression_ratio: Option<f64>,
+    /// Statistics of every iteration.
+    pub iterations: Vec<IterationStats>,
+    /// Whether the stop condition was met before `max_iterations`.
+    pub converged: bool,
+}
+
+/// Checks the points: at least one, all finite.
+fn check_points(points: &[Vector2<f64>]) -> Result<(), Error> {
+    if points.is_empty() {
+        return Err(Error::InvalidArgument(
+            "EM polygon: no points to approximate".into(),
+        ));
+    }
+    match points
+        .iter()
+        .position(|p| !(p.x.is_finite() && p.y.is_finite()))
+    {
+        Some(i) => Err(Error::NonFinite(format!(
+            "EM polygon input point {i} ({}, {})",
+            points[i].x, points[i].y
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// The robust spread `1.4826 * median` of finite distances (0 for none).
+fn robust_spread(distances: &[f64]) -> f64 {
+    1.4826 * median(distances).unwrap_or(0.0)
+}
+
+fn median(values: &[f64]) -> Option<f64> {
+    let mut v: Vec<f64> = values.iter().copied().filter(|d| d.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    let k = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(k, f64::total_cmp);
+    Some(*m)
+}
+
+fn mean(values: &[f64]) -> Option<f64> {
+    let finite: Vec<f64> = values.iter().copied().filter(|d| d.is_finite()).collect();
+    (!finite.is_empty()).then(|| finite.iter().sum::<f64>() / finite.len() as f64)
+}
+
+/// One EMSF step (E-step, M-step, trimming; section II-A) with E-step deviation `sigma`:
+/// what plain EM segment fitting repeats. Points farther than `outlier_sigmas * sigma` from
+/// every segment are ignored (`f64::INFINITY`: none is). Segments left with fewer than two
+/// support points are dropped.
+///
+/// ```
+/// use slam_core::nalgebra::Vector2;
+/// use slam_estimators::em_polygon::{Segment, emsf};
+/// let points: Vec<_> = (0..50).map(|k| Vector2::new(k as f64 * 0.1, 1.0)).collect();
+/// let start = [Segment::new(Vector2::new(0.0, 0.0), Vector2::new(5.0, 2.0))];
+/// let fitted = emsf(&points, &start, 0.5, f64::INFINITY)?;
+/// assert!((fitted[0].start.y - 1.0).abs() < 1e-9 && (fitted[0].length() - 4.9).abs() < 1e-9);
+/// # Ok::<(), slam_core::Error>(())
+/// ```
+pub fn emsf(
+    points: &[Vector2<f64>],
+    segments: &[Segment],
+    sigma: f64,
+    outlier_sigmas: f64,
+) -> Result<Vec<Segment>, Error> {
+    check_points(points)?;
+    if !(sigma.is_finite() && sigma > 0.0 && outlier_sigmas > 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "EMSF deviation and outlier distance must be positive, got {sigma} and \
+             {outlier_sigmas}"
+        )));
+    }
+    if let Some(i) = segments.iter().position(|s| !s.is_finite()) {
+        return Err(Error::NonFinite(format!("EMSF input segment {i}")));
+    }
+    Ok(emsf::emsf_step(points, segments, sigma, outlier_sigmas).0)
+}
+
+/// The distance of every point to its nearest segment (infinite without segments), found
+/// with a grid over the segments.
+pub fn nearest_distances(points: &[Vector2<f64>], segments: &[Segment]) -> Vec<f64> {
+    emsf::assign(points, segments).distance
+}
+
+/// The two diagonals of the points' bounding box: the paper's starting model.
+fn diagonals(lo: Vector2<f64>, hi: Vector2<f64>) -> Vec<Segment> {
+    vec![
+        Segment::new(lo, hi),
+        Segment::new(Vector2::new(lo.x, hi.y), Vector2::new(hi.x, lo.y)),
+    ]
+}
+
+/// Split-and-merge EM segment fitting (SMEMSF, section II-B) of `points`, from the two
+/// diagonals of their bounding box, then ordering into polylines.
+///
+/// Errors: no points, a non-finite point, or parameters out of range. Points that all lie
+/// on one spot (bounding box under a micrometre) give a map without segments.
+///
+/// ```
+/// use slam_core::nalgebra::Vector2;
+/// use slam_estimators::em_polygon::{EmPolygonParams, fit_polygons};
+/// // An L: two walls of 4 m and 3 m, one point every centimetre.
+/// let mut points: Vec<_> = (0..=400).map(|k| Vector2::new(k as f64 * 0.01, 0.0)).collect();
+/// points.extend((1..=300).map(|k| Vector2::new(0.0, k as f64 * 0.01)));
+/// let map = fit_polygons(&points, &EmPolygonParams::default())?;
+/// assert_eq!(map.segments.len(), 2);
+/// assert_eq!(map.polylines.len(), 1);
+/// assert!(map.mean_distance.unwrap() < 0.01);
+/// # Ok::<(), slam_core::Error>(())
+/// ```
+pub fn fit_polygons(
+    points: &[Vector2<f64>],
+    params: &EmPolygonParams,
+) -> Result<PolygonMap, Error> {
+    check_points(points)?;
+    let (lo, hi) = emsf::bounds(points, &[]);
+    fit_polygons_from(points, diagonals(lo, hi), params)
+}
+
+/// [`fit_polygons`] from the given starting segments instead of the diagonals.
+pub fn fit_polygons_from(
+    points: &[Vector2<f64>],
+    initial: Vec<Segment>,
+    params: &EmPolygonParams,
+) -> Result<PolygonMap, Error> {
+    params.validate()?;
+    check_points(points)?;
+    if let Some(i) = initial.iter().position(|s| !s.is_finite()) {
+        return Err(Error::NonFinite(format!("EM polygon starting segment {i}")));
+    }
+    let (lo, hi) = emsf::bounds(points, &[]);
+    let mut result = PolygonMap {
+        segments: Vec::new(),
+        polylines: Vec::new(),
+        points: points.len(),
+        mean_distance: None,
+        median_distance: None,
+        compression_ratio: None,
+        iterations: Vec::new(),
+        converged: false,
+    };
+    if (hi - lo).max() < 1e-6 {
+        // One spot: no line structure.
+        result.converged = true;
+        return Ok(result);
+    }
+    let mut segments = initial;
+    let mut distances = nearest_distances(points, &segments);
+    let mut previous_mean: Option<f64> = None;
+    let mut r = params.r_min;
+    let angle = params.merge_angle_deg.to_radians();
+    let mut previous_sigma = f64::INFINITY;
+    for _ in 0..params.max_iterations {
+        let sigma = robust_spread(&distances)
+            .min(params.sigma_shrink * previous_sigma)
+            .max(params.sigma_min);
+        let annealing = sigma < previous_sigma * (1.0 - 1e-9) && previous_sigma.is_finite();
+        previous_sigma = sigma;
+        r = (params.split_scale * sigma).clamp(params.r_min, params.r_max);
+        // 1) EMSF.
+        segments = emsf::emsf_step(points, &segments, sigma, params.outlier_sigmas).0;
+        // 2) LSS.
+        let threshold = |supports: &[usize]| {
+            let positive: Vec<f64> = supports
+                .iter()
+                .filter(|&&s| s > 0)
+                .map(|&s| s as f64)
+                .collect();
+            (params.support_fraction * median(&positive).unwrap_or(0.0)).max(params.min_support)
+        };
+        let (split, report) = split::split(points, &segments, r, threshold);
+        let after_split = split.len();
+        // 3) EMSF.
+        segments = emsf::emsf_step(points, &split, sigma, params.outlier_sigmas).0;
+        // 4) Merge.
+        let scales = merge::MergeScales {
+            angle,
+            sigma: params.sigma_min,
+            r,
+        };
+        let (merged, merges) = merge::merge_all(segments, &scales);
+        segments = merged;
+        distances = nearest_distances(points, &segments);
+        let mean_distance = mean(&distances).unwrap_or(f64::INFINITY);
+        result.iterations.push(IterationStats {
+            sigma,
+            r,
+            support_threshold: report.threshold,
+            subsegments: (report.subsegments, report.removed),
+            after_split,
+            merges,
+            segments: segments.len(),
+            mean_distance,
+        });
+        if segments.is_empty() {
+            break;
+        }
+        if let Some(previous) = previous_mean
+            && !annealing
+            && (mean_distance - previous).abs() <= params.tolerance * previous
+        {
+            result.converged = true;
+            break;
+        }
+        previous_mean = Some(mean_distance);
+    }
+    result.polylines = polyline::order(&mut segments, params.join_scale * r);
+    let distances = nearest_distances(points, &segments);
+    result.mean_distance = mean(&distances);
+    result.median_distance = median(&distances);
+    result.compression_ratio =
+        (!segments.is_empty()).then(|| points.len() as f64 / (2 * segments.len()) as f64);
+    result.segments = segments;
+    Ok(result)
+}
+
+#[cfg(test)]
+mod tests;

@@ -9,6 +9,7 @@
 //! [estimator]
 //! type = "ekf"            # the one word that selects the estimator
 //! association = "nearest-neighbour"   # or "jcbb"; further keys: slam_estimators::EkfParams
+//!                         # type = "em-polygon": polygonal map of the registered scans (polygon.rs)
 //!
 //! [frontend]
 //! walls = true            # laser scans -> wall segments
@@ -93,6 +94,8 @@ impl Default for DataConfig {
 pub enum EstimatorConfig {
     /// The M-space EKF ([`slam_estimators::Ekf`]).
     Ekf(EkfParams),
+    /// EM polygonal approximation of the registered scans (post-processing, `cli/src/polygon.rs`).
+    EmPolygon(crate::polygon::EmPolygonConfig),
 }
 
 impl Default for EstimatorConfig {
@@ -106,6 +109,7 @@ impl EstimatorConfig {
     pub fn name(&self) -> &'static str {
         match self {
             EstimatorConfig::Ekf(_) => "ekf",
+            EstimatorConfig::EmPolygon(_) => "em-polygon",
         }
     }
 }
@@ -243,7 +247,9 @@ mod tests {
             "t",
         )
         .unwrap();
-        let EstimatorConfig::Ekf(params) = config.estimator;
+        let EstimatorConfig::Ekf(params) = config.estimator else {
+            panic!("not the EKF: {:?}", config.estimator)
+        };
         assert_eq!(params.confirm_after, 2);
         assert_eq!(params.association, slam_estimators::Association::Jcbb);
     }

@@ -11,6 +11,7 @@ mod frontend;
 mod outputs;
 mod pipeline;
 mod plot;
+mod polygon;
 mod run;
 mod simulate;
 

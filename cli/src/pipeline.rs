@@ -66,6 +66,8 @@ pub fn make_estimator(
     let covariance = DMatrix::from_column_slice(3, 3, covariance.as_slice());
     match config {
         EstimatorConfig::Ekf(params) => Ok(Box::new(Ekf::new(pose, covariance, params.clone())?)),
+        // The poses of an em-polygon run with `poses = "ekf"` come from its EKF.
+        EstimatorConfig::EmPolygon(p) => Ok(Box::new(Ekf::new(pose, covariance, p.ekf.clone())?)),
     }
 }
 

@@ -92,6 +92,9 @@ pub fn run(args: &RunArgs) -> Result<()> {
 
 /// Runs a configuration and writes its outputs; returns a one-line summary.
 pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
+    if let crate::config::EstimatorConfig::EmPolygon(polygon) = &config.estimator {
+        return crate::polygon::run_config(config, polygon, quiet);
+    }
     let spec: DataSpec = config.data.spec.parse()?;
     let loaded = spec.load_with(config.data.seed, &config.data.reader_options())?;
     let (sigma_range, noise_factor) = sigma_range(config, &loaded)?;

@@ -21,7 +21,7 @@ const CUTOFF: f64 = 4.0;
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Assignment {
     /// Index of the segment of largest weight (the point's support set, section II-A 3.1),
-    /// `u32::MAX` when there is no segment or the point is an outlier.
+    /// `u32::MAX` when there is no segment.
     pub owner: Vec<u32>,
     /// Distance to that (the nearest) segment, m.
     pub distance: Vec<f64>,
@@ -122,12 +122,12 @@ pub(crate) fn assign(points: &[Vector2<f64>], segments: &[Segment]) -> Assignmen
 /// holding the projections of the support set `Sup(s_j) = {x_i : w_ij = max_k w_ik}`.
 ///
 /// Points farther than `outlier_sigmas * sigma` from every segment are left out of the
-/// M-step and of every support set (`f64::INFINITY`: none is, as in the paper).
+/// M-step (`None`: none is, as in the paper); they stay in the support sets.
 pub(crate) fn emsf_step(
     points: &[Vector2<f64>],
     segments: &[Segment],
     sigma: f64,
-    outlier_sigmas: f64,
+    outlier_sigmas: Option<f64>,
 ) -> (Vec<Segment>, Assignment) {
     let n = segments.len();
     if n == 0 || points.is_empty() {
@@ -138,7 +138,7 @@ pub(crate) fn emsf_step(
     let references: Vec<Vector2<f64>> = segments.iter().map(|s| (s.start + s.end) / 2.0).collect();
     let extra_sq = (CUTOFF * sigma).powi(2);
     let two_sigma_sq = 2.0 * sigma * sigma;
-    let outlier_sq = (outlier_sigmas * sigma).powi(2);
+    let outlier_sq = outlier_sigmas.map_or(f64::INFINITY, |o| (o * sigma).powi(2));
     // E-step and the M-step's sums, chunk by chunk.
     let parts: Vec<(Vec<u32>, Vec<f64>, Vec<Moments>)> = points
         .par_chunks(CHUNK)
@@ -158,12 +158,11 @@ pub(crate) fn emsf_step(
                     continue;
                 };
                 distance.push(d_min.sqrt());
+                owner.push(best);
                 if d_min > outlier_sq {
-                    // Unexplained by the model: in no support set, no weight.
-                    owner.push(u32::MAX);
+                    // Unexplained by the model: in the support set, but no weight.
                     continue;
                 }
-                owner.push(best);
                 // Weights relative to the nearest segment's (which is 1), then normalized.
                 weights.clear();
                 weights.extend(

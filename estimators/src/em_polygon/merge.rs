@@ -10,8 +10,9 @@
 //! made dimensionless against the scales of the current iteration:
 //!
 //! - `parC = angle(L1, L2) / angle_scale` (the acute angle between the two directions),
-//! - `colC = max_i dist(endpoint_i, line of ms) / (sigma_min / 2)` over the four endpoints
-//!   (how far the segments are from lying on one line, in units of half the noise of the
+//! - `colC = max(d1, d2) / (sigma_min / 2)`, the larger distance of the two midpoints to the
+//!   merged line (how far the segments are from lying on one line; their angle is measured
+//!   by `parC`), in units of half the noise of the
 //!   points, `EmPolygonParams::sigma_min`: two fits of one wall differ by much less than the
 //!   noise; the annealed `sigma` is not used, as early in the run it is metres and would
 //!   merge the two walls of a corridor),
@@ -68,10 +69,8 @@ pub(crate) fn merge_pair(a: &Segment, b: &Segment, scales: &MergeScales) -> Opti
     };
     let cos = (ab.dot(&cd) / (l1 * l2)).clamp(-1.0, 1.0);
     let angle = cos.acos();
-    let col = [a.start, a.end, c, d]
-        .iter()
-        .map(|p| (normal.dot(p) - offset).abs())
-        .fold(0.0, f64::max);
+    // d1 and d2, the distances of the midpoints to the merged line.
+    let col = (s1 - offset).abs().max((s2 - offset).abs());
     let gap = (t1a.min(t1b) - t2a.max(t2b))
         .max(t2a.min(t2b) - t1a.max(t1b))
         .max(0.0);

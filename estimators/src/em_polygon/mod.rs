@@ -13,8 +13,10 @@
 //! 3. EMSF again;
 //! 4. merge (section III) by the perceptual-grouping cost `2 parC + 1/4 colC + 1/2 proxC`,
 //!
-//! until the mean point-to-nearest-segment distance is stable, then orders the segments
-//! into polylines.
+//! until the mean point-to-nearest-segment distance is stable; then a last LSS with `C = 0`
+//! removes the empty parts of the segments (the last EMSF trims each segment to all of its
+//! support set, which can stretch it to a few stray points far away), and the segments are
+//! ordered into polylines.
 //!
 //! **Scales chosen from the data at every iteration** (the paper computes `2r` and `C`
 //! "dynamically" without giving formulas; these are this implementation's choices):
@@ -57,7 +59,8 @@ pub struct Segment {
     pub start: Vector2<f64>,
     /// The other end.
     pub end: Vector2<f64>,
-    /// Number of points in its support set at the last EMSF (0 when not yet fitted).
+    /// Number of points whose nearest segment it is (in a [`PolygonMap`]; at the last EMSF
+    /// during the fit; 0 when not yet fitted).
     pub support: usize,
 }
 
@@ -108,10 +111,12 @@ pub struct Polyline {
 pub struct EmPolygonParams {
     /// Smallest E-step deviation `sigma`, m: about the noise of the registered points.
     pub sigma_min: f64,
-    /// Points farther than `outlier_sigmas * sigma` from every segment are left out of the
-    /// M-step and of the support sets (`inf`: none is, as in the paper; without it a segment
-    /// is pulled and stretched over every point it is the nearest to, however far).
-    pub outlier_sigmas: f64,
+    /// Points farther than `outlier_sigmas * sigma` from every segment get no weight in the
+    /// M-step (`None`, the default: all points count, as in the paper). They stay in the
+    /// support sets, so that trimming still stretches segments over unexplained points and
+    /// the split finds the structure there. On the Intel log a limit of 3 leaves more points
+    /// unexplained (mean distance 9.9 cm against 2.8 cm, BENCHMARKS.md).
+    pub outlier_sigmas: Option<f64>,
     /// `sigma` shrinks at least by this factor per iteration until it reaches `sigma_min`
     /// (annealing).
     pub sigma_shrink: f64,
@@ -143,7 +148,7 @@ impl Default for EmPolygonParams {
         EmPolygonParams {
             sigma_min: 0.02,
             sigma_shrink: 0.5,
-            outlier_sigmas: 3.0,
+            outlier_sigmas: None,
             split_scale: 2.0,
             r_min: 0.05,
             r_max: 1.0,
@@ -167,7 +172,10 @@ impl EmPolygonParams {
                 positive(self.sigma_shrink) && self.sigma_shrink <= 1.0,
                 "sigma_shrink in (0, 1]",
             ),
-            (self.outlier_sigmas > 0.0, "outlier_sigmas > 0"),
+            (
+                self.outlier_sigmas.is_none_or(|o| o > 0.0),
+                "outlier_sigmas > 0",
+            ),
             (positive(self.split_scale), "split_scale > 0"),
             (positive(self.r_min), "r_min > 0"),
             (
@@ -288,7 +296,7 @@ fn mean(values: &[f64]) -> Option<f64> {
 
 /// One EMSF step (E-step, M-step, trimming; section II-A) with E-step deviation `sigma`:
 /// what plain EM segment fitting repeats. Points farther than `outlier_sigmas * sigma` from
-/// every segment are ignored (`f64::INFINITY`: none is). Segments left with fewer than two
+/// every segment get no weight in the M-step (`None`: all count). Segments left with fewer than two
 /// support points are dropped.
 ///
 /// ```
@@ -296,7 +304,7 @@ fn mean(values: &[f64]) -> Option<f64> {
 /// use slam_estimators::em_polygon::{Segment, emsf};
 /// let points: Vec<_> = (0..50).map(|k| Vector2::new(k as f64 * 0.1, 1.0)).collect();
 /// let start = [Segment::new(Vector2::new(0.0, 0.0), Vector2::new(5.0, 2.0))];
-/// let fitted = emsf(&points, &start, 0.5, f64::INFINITY)?;
+/// let fitted = emsf(&points, &start, 0.5, None)?;
 /// assert!((fitted[0].start.y - 1.0).abs() < 1e-9 && (fitted[0].length() - 4.9).abs() < 1e-9);
 /// # Ok::<(), slam_core::Error>(())
 /// ```
@@ -304,13 +312,13 @@ pub fn emsf(
     points: &[Vector2<f64>],
     segments: &[Segment],
     sigma: f64,
-    outlier_sigmas: f64,
+    outlier_sigmas: Option<f64>,
 ) -> Result<Vec<Segment>, Error> {
     check_points(points)?;
-    if !(sigma.is_finite() && sigma > 0.0 && outlier_sigmas > 0.0) {
+    if !(sigma.is_finite() && sigma > 0.0 && outlier_sigmas.is_none_or(|o| o > 0.0)) {
         return Err(Error::InvalidArgument(format!(
             "EMSF deviation and outlier distance must be positive, got {sigma} and \
-             {outlier_sigmas}"
+             {outlier_sigmas:?}"
         )));
     }
     if let Some(i) = segments.iter().position(|s| !s.is_finite()) {
@@ -392,6 +400,15 @@ pub fn fit_polygons_from(
     let mut previous_mean: Option<f64> = None;
     let mut r = params.r_min;
     let angle = params.merge_angle_deg.to_radians();
+    // The support threshold C of the split.
+    let threshold = |supports: &[usize]| {
+        let positive: Vec<f64> = supports
+            .iter()
+            .filter(|&&s| s > 0)
+            .map(|&s| s as f64)
+            .collect();
+        (params.support_fraction * median(&positive).unwrap_or(0.0)).max(params.min_support)
+    };
     let mut previous_sigma = f64::INFINITY;
     for _ in 0..params.max_iterations {
         let sigma = robust_spread(&distances)
@@ -403,14 +420,6 @@ pub fn fit_polygons_from(
         // 1) EMSF.
         segments = emsf::emsf_step(points, &segments, sigma, params.outlier_sigmas).0;
         // 2) LSS.
-        let threshold = |supports: &[usize]| {
-            let positive: Vec<f64> = supports
-                .iter()
-                .filter(|&&s| s > 0)
-                .map(|&s| s as f64)
-                .collect();
-            (params.support_fraction * median(&positive).unwrap_or(0.0)).max(params.min_support)
-        };
         let (split, report) = split::split(points, &segments, r, threshold);
         let after_split = split.len();
         // 3) EMSF.
@@ -447,8 +456,21 @@ pub fn fit_polygons_from(
         }
         previous_mean = Some(mean_distance);
     }
+    // The last EMSF trims each segment to all of its support set, which can stretch it over
+    // a gap to a few stray points: a last split removes the subsegments whose square holds
+    // no point at all.
+    segments = split::split(points, &segments, r, |_| 0.0).0;
     result.polylines = polyline::order(&mut segments, params.join_scale * r);
-    let distances = nearest_distances(points, &segments);
+    let assignment = emsf::assign(points, &segments);
+    for s in &mut segments {
+        s.support = 0;
+    }
+    for &j in &assignment.owner {
+        if let Some(s) = segments.get_mut(j as usize) {
+            s.support += 1;
+        }
+    }
+    let distances = assignment.distance;
     result.mean_distance = mean(&distances);
     result.median_distance = median(&distances);
     result.compression_ratio =

@@ -1,5 +1,14 @@
 use super::*;
 
+/// The settings of these synthetic tests: the default with an M-step that ignores points
+/// farther than 3 sigma (the clutter of the room, the other strip of Fig. 1).
+fn robust() -> EmPolygonParams {
+    EmPolygonParams {
+        outlier_sigmas: Some(3.0),
+        ..Default::default()
+    }
+}
+
 /// Deterministic noise in `[-1, 1]` (splitmix64).
 struct Noise(u64);
 
@@ -68,7 +77,7 @@ fn figure_1_plain_em_stays_in_the_local_optimum_split_and_merge_finds_both_strip
     ];
 
     // Plain EM segment fitting: EMSF repeated, with the same sigma rule, no split or merge.
-    let params = EmPolygonParams::default();
+    let params = robust();
     let mut segments = start.to_vec();
     for _ in 0..50 {
         let sigma = robust_spread(&nearest_distances(&points, &segments)).max(params.sigma_min);
@@ -132,7 +141,7 @@ fn room(noise: &mut Noise) -> Vec<Vector2<f64>> {
 #[test]
 fn a_room_with_a_doorway_becomes_five_walls_in_one_polyline() {
     let points = room(&mut Noise(3));
-    let map = fit_polygons(&points, &EmPolygonParams::default()).unwrap();
+    let map = fit_polygons(&points, &robust()).unwrap();
     assert_eq!(map.segments.len(), 5, "{:?}", map.segments);
     assert_eq!(map.polylines.len(), 1, "{:?}", map.polylines);
     assert!(!map.polylines[0].closed);
@@ -216,35 +225,6 @@ fn degenerate_inputs_give_clear_errors_or_trivial_maps() {
             .to_string()
             .contains("r_min")
     );
-    assert!(emsf(&spot, &[], f64::NAN, 3.0).is_err());
-    assert!(emsf(&spot, &[], 0.1, 3.0).unwrap().is_empty());
-}
-
-#[test]
-#[ignore]
-fn debug_room() {
-    let points = room(&mut Noise(3));
-    let map = fit_polygons(&points, &EmPolygonParams::default()).unwrap();
-    for it in &map.iterations {
-        eprintln!("{it:?}");
-    }
-    eprintln!("{:?}", map.segments);
-}
-
-#[test]
-#[ignore]
-fn debug_fig1() {
-    let mut noise = Noise(7);
-    let strips = [(v(-5.0, -3.0), v(5.0, 3.0)), (v(-5.0, 3.0), v(5.0, -3.0))];
-    let mut points = strip(strips[0].0, strips[0].1, 0.02, 0.04, &mut noise);
-    points.extend(strip(strips[1].0, strips[1].1, 0.02, 0.04, &mut noise));
-    let start = vec![
-        Segment::new(v(-5.0, 1.5), v(5.0, 1.5)),
-        Segment::new(v(-5.0, -1.5), v(5.0, -1.5)),
-    ];
-    let map = fit_polygons_from(&points, start, &EmPolygonParams::default()).unwrap();
-    for it in &map.iterations {
-        eprintln!("{it:?}");
-    }
-    eprintln!("{:?}", map.segments);
+    assert!(emsf(&spot, &[], f64::NAN, None).is_err());
+    assert!(emsf(&spot, &[], 0.1, Some(3.0)).unwrap().is_empty());
 }

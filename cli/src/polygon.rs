@@ -19,7 +19,8 @@
 //!
 //! Outputs: `trajectory.tum` (the poses used), `map.json` (the walls and their shared
 //! corners), `metrics.json` (segments, mean point-to-segment distance, compression ratio, the
-//! statistics of every iteration), `map.svg` / `map.png` (points, walls, path).
+//! statistics of every iteration), `map.svg` / `map.png` (points, walls, path) and
+//! `map-walls.png` (walls and path alone).
 
 use std::time::Instant;
 
@@ -300,9 +301,10 @@ pub fn run_config(config: &Config, polygon: &EmPolygonConfig, quiet: bool) -> Re
         .map_err(|e| CliError::Usage(format!("serializing metrics: {e}")))?;
     write_text(dir, "metrics.json", &json)?;
     if config.output.plots {
-        let figure = figure(&name, &points, &fit, &poses);
-        figure.save(&dir.join("map.svg"))?;
-        figure.save(&dir.join("map.png"))?;
+        let with_points = figure(&name, Some(&points), &fit, &poses);
+        with_points.save(&dir.join("map.svg"))?;
+        with_points.save(&dir.join("map.png"))?;
+        figure(&name, None, &fit, &poses).save(&dir.join("map-walls.png"))?;
     }
     let number =
         |v: Option<f64>, digits: usize| v.map_or("n/a".into(), |v| format!("{v:.digits$}"));
@@ -367,21 +369,28 @@ fn ekf_poses(
     ))
 }
 
-/// Points (grey), walls (blue), polyline joints and the path.
-fn figure(name: &str, points: &[Vector2<f64>], fit: &PolygonMap, poses: &[(f64, Pose2)]) -> Figure {
+/// The registered points (grey, when given), the walls as polylines (blue) and the path.
+fn figure(
+    name: &str,
+    points: Option<&[Vector2<f64>]>,
+    fit: &PolygonMap,
+    poses: &[(f64, Pose2)],
+) -> Figure {
     let mut figure = Figure::new(
         format!(
             "{name}: em-polygon, {} segments over {} points",
             fit.segments.len(),
-            points.len()
+            fit.points
         ),
         1600,
     );
-    figure.dots(points.to_vec(), palette::TRUTH, 1);
-    figure.legend(
-        format!("{} registered points", points.len()),
-        palette::TRUTH,
-    );
+    if let Some(points) = points {
+        figure.dots(points.to_vec(), palette::TRUTH, 1);
+        figure.legend(
+            format!("{} registered points", points.len()),
+            palette::TRUTH,
+        );
+    }
     figure.polyline(
         poses.iter().map(|p| p.1.translation()).collect(),
         palette::PATH,
@@ -487,9 +496,40 @@ mod tests {
         assert_eq!(features.len(), 4);
         assert!(features.iter().all(|f| f["type"] == "wall"));
         assert_eq!(map["shared_blocks"].as_array().unwrap().len(), 4);
-        for file in ["trajectory.tum", "map.svg", "map.png"] {
+        for file in ["trajectory.tum", "map.svg", "map.png", "map-walls.png"] {
             assert!(dir.join("out").join(file).exists(), "{file} missing");
         }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The Intel lab with its SLAM-corrected poses (about 160,000 points): run with
+    /// `cargo test --release -p slam-cli intel -- --ignored` (BENCHMARKS.md has the figures).
+    #[test]
+    #[ignore]
+    fn the_intel_lab_becomes_a_polygonal_map() {
+        let log = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/datasets/radish-carmen-corrected/intel-corrected.log.gz");
+        if !log.exists() {
+            eprintln!("skipped: {} is absent", log.display());
+            return;
+        }
+        let dir = temp_dir("intel");
+        let text = format!(
+            "[data]\nspec = \"carmen:{}\"\n[estimator]\ntype = \"em-polygon\"\n[output]\ndir = \"{}\"\n",
+            log.display(),
+            dir.join("out").display()
+        );
+        let config = Config::from_toml(&text, "test").unwrap();
+        crate::run::run_config(&config, true).unwrap();
+        let metrics: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("out/metrics.json")).unwrap())
+                .unwrap();
+        let points = metrics["points"].as_u64().unwrap();
+        let mean = metrics["mean_point_to_segment_m"].as_f64().unwrap();
+        let ratio = metrics["compression_ratio"].as_f64().unwrap();
+        assert!((150_000..170_000).contains(&points), "{points} points");
+        assert!(mean < 0.05, "mean point-to-segment distance {mean}");
+        assert!(ratio > 50.0, "compression {ratio}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -29,9 +29,11 @@
 //!   Without the shrinking, a poor model keeps a large `sigma`, hence a large `r`, and the
 //!   split never discriminates. The stop condition (the mean point-to-nearest-segment
 //!   distance changes by less than `tolerance`) is tested once `sigma` no longer shrinks.
-//! - `r = clamp(split_scale sigma, r_min, r_max)`: a square of side `2r` around a subsegment
-//!   then holds the points of a wall along it (they lie within about `2 sigma` of the line)
-//!   but few of a wall that crosses it.
+//! - `r = clamp(max(split_scale sigma, subsegment_points * spacing / 2), r_min, r_max)`, with
+//!   `spacing` the total segment length over the number of points in their support sets: a
+//!   square of side `2r` around a subsegment then holds the points of a wall along it (they
+//!   lie within about `2 sigma` of the line), few of a wall that crosses it, and on average
+//!   at least `subsegment_points` (10) points, so that sparse data are not cut to pieces.
 //! - `C = max(min_support, support_fraction * median of the positive subsegment supports)`:
 //!   a subsegment is kept when its square holds more than that fraction of the typical
 //!   support of a subsegment lying on structure.
@@ -122,6 +124,9 @@ pub struct EmPolygonParams {
     pub sigma_shrink: f64,
     /// The split half-length is `r = split_scale * sigma` ...
     pub split_scale: f64,
+    /// ... and at least half the length that holds this many points at the mean density of
+    /// points along the segments (sparse points need longer subsegments) ...
+    pub subsegment_points: f64,
     /// ... bounded below by this, m ...
     pub r_min: f64,
     /// ... and above by this, m.
@@ -150,6 +155,7 @@ impl Default for EmPolygonParams {
             sigma_shrink: 0.5,
             outlier_sigmas: None,
             split_scale: 2.0,
+            subsegment_points: 10.0,
             r_min: 0.05,
             r_max: 1.0,
             support_fraction: 0.1,
@@ -177,6 +183,10 @@ impl EmPolygonParams {
                 "outlier_sigmas > 0",
             ),
             (positive(self.split_scale), "split_scale > 0"),
+            (
+                self.subsegment_points.is_finite() && self.subsegment_points >= 0.0,
+                "subsegment_points >= 0",
+            ),
             (positive(self.r_min), "r_min > 0"),
             (
                 positive(self.r_max) && self.r_max >= self.r_min,
@@ -237,7 +247,8 @@ pub struct IterationStats {
 /// The result of [`fit_polygons`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PolygonMap {
-    /// The segments (joined ends moved onto their common polyline vertex).
+    /// The segments (joined ends moved onto their common polyline vertex), none shorter
+    /// than [`MIN_LENGTH`].
     pub segments: Vec<Segment>,
     /// The segments ordered into polylines; every segment is in exactly one.
     pub polylines: Vec<Polyline>,
@@ -254,6 +265,9 @@ pub struct PolygonMap {
     /// Whether the stop condition was met before `max_iterations`.
     pub converged: bool,
 }
+
+/// Shortest segment in a result, m.
+pub const MIN_LENGTH: f64 = 1e-3;
 
 /// Checks the points: at least one, all finite.
 fn check_points(points: &[Vector2<f64>]) -> Result<(), Error> {
@@ -416,9 +430,20 @@ pub fn fit_polygons_from(
             .max(params.sigma_min);
         let annealing = sigma < previous_sigma * (1.0 - 1e-9) && previous_sigma.is_finite();
         previous_sigma = sigma;
-        r = (params.split_scale * sigma).clamp(params.r_min, params.r_max);
         // 1) EMSF.
         segments = emsf::emsf_step(points, &segments, sigma, params.outlier_sigmas).0;
+        // The split scale: from the deviation, and long enough that a subsegment holds
+        // `subsegment_points` points at the mean density along the segments.
+        let length: f64 = segments.iter().map(Segment::length).sum();
+        let support: usize = segments.iter().map(|s| s.support).sum();
+        let spacing = if support > 0 {
+            length / support as f64
+        } else {
+            0.0
+        };
+        r = (params.split_scale * sigma)
+            .max(0.5 * params.subsegment_points * spacing)
+            .clamp(params.r_min, params.r_max);
         // 2) LSS.
         let (split, report) = split::split(points, &segments, r, threshold);
         let after_split = split.len();
@@ -460,7 +485,28 @@ pub fn fit_polygons_from(
     // a gap to a few stray points: a last split removes the subsegments whose square holds
     // no point at all.
     segments = split::split(points, &segments, r, |_| 0.0).0;
-    result.polylines = polyline::order(&mut segments, params.join_scale * r);
+    // Joining ends can collapse a short segment between two joints: such segments are
+    // dropped and the ordering redone.
+    let join = params.join_scale * r;
+    loop {
+        let mut joined = segments.clone();
+        let polylines = polyline::order(&mut joined, join);
+        let collapsed: Vec<bool> = joined
+            .iter()
+            .zip(&segments)
+            .map(|(j, s)| j.length() < (0.25 * s.length()).max(MIN_LENGTH))
+            .collect();
+        if !collapsed.contains(&true) {
+            segments = joined;
+            result.polylines = polylines;
+            break;
+        }
+        segments = segments
+            .into_iter()
+            .zip(collapsed)
+            .filter_map(|(s, c)| (!c).then_some(s))
+            .collect();
+    }
     let assignment = emsf::assign(points, &segments);
     for s in &mut segments {
         s.support = 0;

@@ -13,10 +13,11 @@
 //! 3. EMSF again;
 //! 4. merge (section III) by the perceptual-grouping cost `2 parC + 1/4 colC + 1/2 proxC`,
 //!
-//! until the mean point-to-nearest-segment distance is stable; then a last LSS with `C = 0`
-//! removes the empty parts of the segments (the last EMSF trims each segment to all of its
-//! support set, which can stretch it to a few stray points far away), and the segments are
-//! ordered into polylines.
+//! until the mean point-to-nearest-segment distance is stable. Then a last EMSF whose M-step
+//! ignores points farther than `3 sigma` puts lines pulled off their wall by far points back
+//! on it, a last LSS with `C = 0` removes the empty parts of the segments (EMSF trims each
+//! segment to all of its support set, which can stretch it to a few stray points far away),
+//! and the segments are ordered into polylines.
 //!
 //! **Scales chosen from the data at every iteration** (the paper computes `2r` and `C`
 //! "dynamically" without giving formulas; these are this implementation's choices):
@@ -424,12 +425,14 @@ pub fn fit_polygons_from(
         (params.support_fraction * median(&positive).unwrap_or(0.0)).max(params.min_support)
     };
     let mut previous_sigma = f64::INFINITY;
+    let mut last_sigma = params.sigma_min;
     for _ in 0..params.max_iterations {
         let sigma = robust_spread(&distances)
             .min(params.sigma_shrink * previous_sigma)
             .max(params.sigma_min);
         let annealing = sigma < previous_sigma * (1.0 - 1e-9) && previous_sigma.is_finite();
         previous_sigma = sigma;
+        last_sigma = sigma;
         // 1) EMSF.
         segments = emsf::emsf_step(points, &segments, sigma, params.outlier_sigmas).0;
         // The split scale: from the deviation, and long enough that a subsegment holds
@@ -484,6 +487,9 @@ pub fn fit_polygons_from(
     // The last EMSF trims each segment to all of its support set, which can stretch it over
     // a gap to a few stray points: a last split removes the subsegments whose square holds
     // no point at all.
+    // First a last EMSF whose M-step ignores points farther than 3 sigma, so that lines
+    // pulled off their wall by far points lie on it again.
+    segments = emsf::emsf_step(points, &segments, last_sigma, Some(3.0)).0;
     segments = split::split(points, &segments, r, |_| 0.0).0;
     // Joining ends can collapse a short segment between two joints: such segments are
     // dropped and the ordering redone.

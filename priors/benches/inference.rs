@@ -1,0 +1,2 @@
+//! One inference of the rectangular prior on a simulated square room.
+fn main() {}

@@ -303,6 +303,7 @@ fn extrinsic_directions(
                 t = [-t[0], -t[1]];
             }
             let turn = x[2 * b + 1] - x[2 * a + 1];
+            let turn = turn.sin().atan2(turn.cos());
             (t, 2.0 * (0.5 * turn).sin() / length)
         };
         // dp/dt = I + u d_rho_d_t^T; dp/dtheta = u d_rho_d_theta + rho u_perp.
@@ -324,4 +325,59 @@ fn extrinsic_directions(
             curvature * (tangent[0] * dp_dtheta[0] + tangent[1] * dp_dtheta[1]) - 1.0;
     }
     e
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{Scene, Shape};
+
+    /// The derivative of the readings and normals with respect to the sensor pose against
+    /// central differences of ray casting, on a circle seen from inside.
+    #[test]
+    fn extrinsic_directions_match_ray_casting() {
+        let scene = Scene {
+            shapes: vec![Shape::Circle {
+                centre: [0.0, 0.0],
+                radius: 3.0,
+            }],
+        };
+        let pose = [0.7, -0.4, 0.2];
+        let phi: Vec<f64> = (0..40).map(|k| -1.0 + 0.05 * k as f64).collect();
+        let read = |pose: [f64; 3]| -> Vec<f64> {
+            phi.iter()
+                .flat_map(|&b| {
+                    let (t, n, _) = scene.cast([pose[0], pose[1]], pose[2] + b).unwrap();
+                    [t, n[1].atan2(n[0]) - pose[2]]
+                })
+                .collect()
+        };
+        let x = read(pose);
+        let members: Vec<usize> = (0..phi.len()).collect();
+        let links = vec![Topology::SameRegion; phi.len() - 1];
+        let e = extrinsic_directions(&members, &links, &x, &phi);
+        for c in 0..3 {
+            let h = 1e-6;
+            // A step along the sensor frame's axis c (or of its heading).
+            let (s, co) = pose[2].sin_cos();
+            let step = match c {
+                0 => [co * h, s * h, 0.0],
+                1 => [-s * h, co * h, 0.0],
+                _ => [0.0, 0.0, h],
+            };
+            let up = [pose[0] + step[0], pose[1] + step[1], pose[2] + step[2]];
+            let down = [pose[0] - step[0], pose[1] - step[1], pose[2] - step[2]];
+            let (xu, xd) = (read(up), read(down));
+            for r in 0..x.len() {
+                let mut d = xu[r] - xd[r];
+                d = d.sin().atan2(d.cos());
+                let numeric = d / (2.0 * h);
+                assert!(
+                    (numeric - e[(r, c)]).abs() < 1e-5 * (1.0 + numeric.abs()),
+                    "row {r} column {c}: analytic {} numeric {numeric}",
+                    e[(r, c)]
+                );
+            }
+        }
+    }
 }

@@ -138,6 +138,10 @@ pub struct Params {
     /// in a row, ends the inner loop as infeasible (the violation of a feasible topology falls
     /// with `1 / lambda`). 1 disables the test.
     pub stall_ratio: f64,
+    /// Homotopy stages run after the first feasible one, to tighten the constraints further
+    /// (the violation falls by `penalty_factor` per stage) before the degrees of freedom are
+    /// computed.
+    pub polish_stages: usize,
     /// Outer iterations (relaxations), at most. `None`: three per reading.
     pub max_outer_iterations: Option<usize>,
     /// Move region boundaries by one reading while that lowers the fit cost.
@@ -160,6 +164,7 @@ impl Default for Params {
             barrier_factor: 0.1,
             max_newton_steps: 30,
             stall_ratio: 0.5,
+            polish_stages: 2,
             max_outer_iterations: None,
             refine_boundaries: true,
         }
@@ -696,6 +701,7 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
     let mut mu = params.barrier_start;
     let mut buffer = Vec::new();
     let mut history = Vec::new();
+    let mut polish = 0;
     loop {
         newton(problem, &mut x, lambda, mu, params, &mut buffer)?;
         let violations = problem.window_violations(&x);
@@ -708,7 +714,11 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
         let stalled = h >= 5
             && history[h - 1] > params.stall_ratio * history[h - 2]
             && history[h - 2] > params.stall_ratio * history[h - 3];
-        if feasible || stalled || lambda >= params.penalty_max {
+        if feasible {
+            polish += 1;
+        }
+        let polished = feasible && polish > params.polish_stages;
+        if polished || (!feasible && stalled) || lambda >= params.penalty_max {
             let m = problem.rho.len();
             let mut link_penalties = vec![0.0; m.saturating_sub(1)];
             for (&(start, _), v) in problem.windows.iter().zip(&violations) {

@@ -4,6 +4,9 @@
 
 mod common;
 
+/// Range noise of the simulated scans, m.
+const NOISE: f64 = 0.005;
+
 use common::{circle, full_scan};
 use slam_priors::scene::Scene;
 use slam_priors::{Dof, Library, Params, ScanInput, analyze, infer};
@@ -20,8 +23,8 @@ fn run(
 ) -> Dof {
     let library = Library::shipped().unwrap();
     let prior = library.compile(prior).unwrap();
-    let sim = full_scan(scene, pose, angle_min, beams, 0.005, 0, 11);
-    let all = ScanInput::from_scan(&sim.scan, 0.005).unwrap();
+    let sim = full_scan(scene, pose, angle_min, beams, NOISE, 0, 11);
+    let all = ScanInput::from_scan(&sim.scan, NOISE).unwrap();
     let keep: Vec<usize> = (0..all.len())
         .filter(|&i| {
             let hit = sim.truth[all.beam[i]].unwrap();
@@ -32,7 +35,7 @@ fn run(
     let input = ScanInput::new(
         keep.iter().map(|&i| all.phi[i]).collect(),
         keep.iter().map(|&i| all.rho[i]).collect(),
-        0.005,
+        NOISE,
     )
     .unwrap();
     let solution = infer(&prior, &input, &Params::default()).unwrap();

@@ -40,7 +40,7 @@ fn shipped_priors_parse_and_check() {
             "Circular prior (with prior on radius)",
             3,
             Some(10.0),
-            [2, 0, 0],
+            [4, 0, 0],
             [1, 0, 0],
         ),
         ("Splines prior", 2, Some(10.0), [0, 0, 0], [1, 0, 0]),

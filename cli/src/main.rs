@@ -11,6 +11,7 @@ mod frontend;
 mod outputs;
 mod pipeline;
 mod plot;
+mod prior;
 mod run;
 mod simulate;
 
@@ -40,6 +41,9 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Compare an estimated trajectory with ground truth (ATE, RPE).
     Eval(eval::EvalArgs),
+    /// Run a structure prior (priorlets) on one scan and draw the corrected readings, the
+    /// region and surface boundaries and the outliers.
+    Prior(prior::PriorArgs),
 }
 
 fn main() {
@@ -51,6 +55,7 @@ fn main() {
         Command::Simulate(args) => simulate::run(args),
         Command::Consistency(args) => consistency::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::Prior(args) => prior::run(args),
     };
     if let Err(error) = result {
         eprintln!("slam: {error}");

@@ -114,7 +114,7 @@ pub struct Params {
     /// Probability `beta` that a reading is described by the prior; the objective gains
     /// `gamma = ln(beta / (1 - beta))` per reading in INMODEL.
     pub inlier_probability: f64,
-    /// Regions with fewer readings leave INMODEL (outliers). `None`: `order + 1`.
+    /// Regions with fewer readings leave INMODEL (outliers). `None`: twice the order.
     pub min_region_points: Option<usize>,
     /// Neighbours on each side used to estimate the initial normals.
     pub normal_window: usize,
@@ -984,7 +984,7 @@ pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Soluti
             prior.order
         )));
     }
-    let min_points = params.min_region_points.unwrap_or(prior.order + 1).max(1);
+    let min_points = params.min_region_points.unwrap_or(2 * prior.order).max(1);
     let max_outer = params.max_outer_iterations.unwrap_or(3 * n + 10);
     let mut members: Vec<usize> = (0..n).collect();
     let mut links = vec![Topology::SameRegion; n - 1];

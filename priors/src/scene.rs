@@ -145,6 +145,13 @@ impl Scene {
         best
     }
 
+    /// Simulates one scan with a seeded generator (ChaCha8), reproducibly.
+    pub fn simulate_seeded(&self, spec: &ScanSpec, seed: u64) -> Result<SimulatedScan> {
+        use rand::SeedableRng;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        self.simulate(spec, &mut rng)
+    }
+
     /// Simulates one scan with Gaussian range noise and clutter outliers.
     pub fn simulate<R: Rng>(&self, spec: &ScanSpec, rng: &mut R) -> Result<SimulatedScan> {
         let noise = Normal::new(0.0, spec.sigma)

@@ -142,6 +142,10 @@ pub struct Params {
     /// (the violation falls by `penalty_factor` per stage) before the degrees of freedom are
     /// computed.
     pub polish_stages: usize,
+    /// Geometric first guess of the topology (the source's Fig. 6a): two consecutive
+    /// readings farther apart than a surface seen at this incidence angle (degrees from its
+    /// normal) would put them, plus 8 sigma, start on different surfaces. 90 or more: off.
+    pub max_incidence_deg: f64,
     /// Outer iterations (relaxations), at most. `None`: three per reading.
     pub max_outer_iterations: Option<usize>,
     /// Move region boundaries by one reading while that lowers the fit cost.
@@ -165,6 +169,7 @@ impl Default for Params {
             max_newton_steps: 30,
             stall_ratio: 0.5,
             polish_stages: 2,
+            max_incidence_deg: 85.0,
             max_outer_iterations: None,
             refine_boundaries: true,
         }
@@ -931,11 +936,15 @@ fn build_problem<'a>(
 }
 
 /// Removes the readings of regions smaller than `min_points`; a link bridging removed
-/// readings becomes same-region (the strictest). Returns whether anything was removed.
+/// readings becomes same-region (the strictest), or different-surface when its two readings
+/// are too far apart to be on one surface ([`GapTest`]). Returns whether anything was
+/// removed.
 fn remove_lonely_points(
     members: &mut Vec<usize>,
     links: &mut Vec<Topology>,
     min_points: usize,
+    input: &ScanInput,
+    gap: &GapTest,
 ) -> bool {
     let m = members.len();
     let mut keep = vec![true; m];
@@ -961,6 +970,8 @@ fn remove_lonely_points(
         if let Some(p) = previous {
             new_links.push(if p + 1 == j {
                 links[p]
+            } else if gap.between(input, members[p], members[j]) {
+                Topology::DifferentSurface
             } else {
                 Topology::SameRegion
             });
@@ -971,6 +982,45 @@ fn remove_lonely_points(
     *members = new_members;
     *links = new_links;
     true
+}
+
+/// The geometric part of the first topology guess (the source's Fig. 6a): two readings
+/// farther apart than a surface seen at [`Params::max_incidence_deg`] would put them (plus
+/// 8 sigma) cannot be on one surface. Beams with no return between them count as at most
+/// one more beam spacing (a surface there would have answered them).
+pub(crate) struct GapTest {
+    stretch: Option<f64>,
+    spacing: f64,
+}
+
+impl GapTest {
+    fn new(input: &ScanInput, params: &Params) -> GapTest {
+        let mut steps: Vec<f64> = input.phi.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+        steps.sort_by(f64::total_cmp);
+        GapTest {
+            stretch: (params.max_incidence_deg < 90.0)
+                .then(|| 1.0 / params.max_incidence_deg.to_radians().cos()),
+            spacing: steps.get(steps.len() / 2).copied().unwrap_or(0.0),
+        }
+    }
+
+    fn between(&self, input: &ScanInput, a: usize, b: usize) -> bool {
+        let Some(stretch) = self.stretch else {
+            return false;
+        };
+        let point = |i: usize| {
+            let (s, c) = input.phi[i].sin_cos();
+            [input.rho[i] * c, input.rho[i] * s]
+        };
+        let (p, q) = (point(a), point(b));
+        let distance = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).sqrt();
+        let beams = (b.abs_diff(a) as f64 * self.spacing).max(self.spacing);
+        let angle = (input.phi[b] - input.phi[a])
+            .abs()
+            .min(beams + self.spacing);
+        let expected = input.rho[a].min(input.rho[b]) * angle * stretch;
+        distance > expected + 8.0 * input.sigma[a].max(input.sigma[b])
+    }
 }
 
 /// Runs the inference (Algorithm 1 around Algorithm 2) of `prior` on one scan.
@@ -987,7 +1037,23 @@ pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Soluti
     let min_points = params.min_region_points.unwrap_or(2 * prior.order).max(1);
     let max_outer = params.max_outer_iterations.unwrap_or(3 * n + 10);
     let mut members: Vec<usize> = (0..n).collect();
-    let mut links = vec![Topology::SameRegion; n - 1];
+    let gap = GapTest::new(input, params);
+    let mut links: Vec<Topology> = (0..n - 1)
+        .map(|k| {
+            if gap.between(input, k, k + 1) {
+                Topology::DifferentSurface
+            } else {
+                Topology::SameRegion
+            }
+        })
+        .collect();
+    // Readings isolated by the geometric guess are outliers from the start.
+    remove_lonely_points(&mut members, &mut links, min_points, input, &gap);
+    if members.len() < prior.order {
+        return Err(PriorError::InvalidInput(
+            "no run of readings close enough together to be one surface".into(),
+        ));
+    }
     let mut outer = 0;
     let mut result;
     loop {
@@ -1009,7 +1075,7 @@ pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Soluti
             Topology::SameRegion => Topology::DifferentRegion,
             _ => Topology::DifferentSurface,
         };
-        remove_lonely_points(&mut members, &mut links, min_points);
+        remove_lonely_points(&mut members, &mut links, min_points, input, &gap);
         if members.len() < prior.order {
             return Err(PriorError::InvalidInput(
                 "every reading was removed from INMODEL: the prior does not describe this scan"
@@ -1040,7 +1106,13 @@ pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Soluti
                     trial[k] = Topology::SameRegion;
                     let mut trial_members = members.clone();
                     let mut trial_links = trial.clone();
-                    if remove_lonely_points(&mut trial_members, &mut trial_links, min_points) {
+                    if remove_lonely_points(
+                        &mut trial_members,
+                        &mut trial_links,
+                        min_points,
+                        input,
+                        &gap,
+                    ) {
                         break;
                     }
                     let trial_problem = build_problem(prior, input, &members, &trial, params);

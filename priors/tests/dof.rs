@@ -42,9 +42,10 @@ fn run(
     assert!(solution.feasible);
     let dof = analyze(&prior, &solution).unwrap();
     eprintln!(
-        "{}: {} regions, {} outliers, Free {}, Extr {}, Intr {}",
+        "{}: {} regions, {} surfaces, {} outliers, Free {}, Extr {}, Intr {}",
         prior.name,
         solution.regions().len(),
+        solution.surfaces().len(),
         solution.outliers().len(),
         dof.free_dim(),
         dof.extrinsic_dim(),
@@ -106,8 +107,8 @@ fn two_circles_have_three_intrinsic_dof() {
     let scene = Scene {
         shapes: vec![circle([2.0, 1.0], 0.5), circle([2.0, -1.5], 0.7)],
     };
-    // Two arcs, without the grazing readings at the pillars' edges.
-    let dof = run("Circular prior", &scene, [0.0, 0.0, 0.0], -3.1, 360, 60.0);
+    // Two pillars seen from outside: two arcs, grazing readings at their edges included.
+    let dof = run("Circular prior", &scene, [0.0, 0.0, 0.0], -3.1, 360, 90.0);
     assert_eq!(dof.free_dim(), 6);
     assert_eq!(dof.extrinsic_dim(), 3);
     assert_eq!(dof.intrinsic_dim(), 3);

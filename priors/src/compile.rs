@@ -279,6 +279,12 @@ impl Library {
     }
 
     /// Resolves inheritance and checks and compiles the prior `name`.
+    ///
+    /// Inheritance (`specializes:`): the nearest `order:` and `max_curvature:` win (a child
+    /// may not lower the order); definitions are taken ancestor first, so a child's
+    /// redefinition overrides the parent's (also inside the parent's priorlet lines); each
+    /// priorlet is the parent's lines followed by the child's (the source's circular prior
+    /// with a prior on the radius adds an energy to the circular prior's constraints).
     pub fn compile(&self, name: &str) -> Result<Prior> {
         let mut chain: Vec<&PriorFile> = Vec::new();
         let mut seen = HashSet::new();

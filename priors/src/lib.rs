@@ -1,14 +1,21 @@
 //! Structure priors for a single range scan, written by users in a small language
 //! ("priorlets"), and the inference engine that applies them.
 //!
-//! Source: A. Censi, L. Iocchi, G. Grisetti et al., "Augmented scans and a language for
-//! structure priors" (the fourth source of this project; `papers/003_*`). A scan is
+//! Source: the fourth source of this project, structure priors for dense scans written in a
+//! domain-specific language (`papers/003_80e46aa064e8c63c.txt`). A scan is
 //! represented by its readings `rho_i`, the surface normals `alpha_i` and a topology between
 //! consecutive readings (same region / different region / different surface). A prior file
 //! states, per topology case, equalities, inequalities, disjunctions and energies over
 //! `order` consecutive readings ([`parser`] gives the grammar; the shipped priors are in
 //! [`SHIPPED`]). [`infer`] solves the constrained MAP problem (Problem 4 of the source) and
 //! [`dof::analyze`] recovers the degrees of freedom and the posterior covariance (section 4).
+//!
+//! Readings of the source that go beyond its text, each documented where it is implemented:
+//! a child prior (`specializes:`) inherits the parent's definitions (a redefinition
+//! overrides) and *adds* its priorlet lines to the parent's; the circular prior adds the
+//! chord-symmetry equalities the source's figure omits; the Hessian is convexified window by
+//! window; a last pass moves region boundaries by one reading while the fit improves; and the
+//! first topology guess separates readings too far apart for one surface.
 //!
 //! ```
 //! use slam_priors::{Library, Params, ScanInput, infer};

@@ -359,3 +359,71 @@ pub fn run(args: &PriorArgs) -> Result<()> {
     println!("image: {}", args.out.display());
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(data: &str, out: PathBuf) -> PriorArgs {
+        PriorArgs {
+            data: data.into(),
+            scan: 0,
+            prior: "Rectangular prior".into(),
+            prior_files: Vec::new(),
+            list: false,
+            sigma_range: 0.01,
+            beams: 90,
+            outliers: 2,
+            fov: None,
+            dof: true,
+            seed: 3,
+            out,
+        }
+    }
+
+    fn temp(name: &str) -> PathBuf {
+        std::env::temp_dir().join(format!("slam-cli-prior-{}-{name}", std::process::id()))
+    }
+
+    #[test]
+    fn a_built_in_scene_is_drawn() {
+        let out = temp("square.png");
+        run(&args("square", out.clone())).unwrap();
+        assert!(std::fs::metadata(&out).unwrap().len() > 1000);
+        std::fs::remove_file(&out).unwrap();
+    }
+
+    #[test]
+    fn bad_prior_files_and_names_are_errors() {
+        let file = temp("bad.prior");
+        std::fs::write(
+            &file,
+            "name: Bad\norder: 2\npriorlet same_region:\n  rho_1 === 2\n",
+        )
+        .unwrap();
+        let mut a = args("square", temp("unused.png"));
+        a.prior_files = vec![file.clone()];
+        let error = run(&a).unwrap_err().to_string();
+        assert!(error.contains("bad.prior:4:11"), "{error}");
+        std::fs::remove_file(&file).unwrap();
+        let mut a = args("square", temp("unused.png"));
+        a.prior = "No such prior".into();
+        assert!(run(&a).unwrap_err().to_string().contains("unknown prior"));
+    }
+
+    #[test]
+    fn a_real_scan_of_the_intel_log() {
+        let log = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/datasets/radish-carmen-corrected/intel-corrected.log.gz");
+        if !log.exists() {
+            eprintln!("skipped: {} is absent", log.display());
+            return;
+        }
+        let out = temp("intel.png");
+        let mut a = args(&format!("carmen:{}", log.display()), out.clone());
+        a.sigma_range = 0.02;
+        run(&a).unwrap();
+        assert!(std::fs::metadata(&out).unwrap().len() > 1000);
+        std::fs::remove_file(&out).unwrap();
+    }
+}

@@ -239,3 +239,11 @@ proptest! {
         let _ = parse_prior(&text, "soup.prior");
     }
 }
+
+/// The crate may use the laser scan types and the simulator, never an estimator.
+#[test]
+fn slam_priors_does_not_depend_on_estimators() {
+    let manifest = include_str!("../Cargo.toml");
+    assert!(!manifest.contains("slam-estimators"));
+    assert!(manifest.contains("slam-core") && manifest.contains("slam-sensors"));
+}

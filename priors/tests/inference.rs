@@ -131,3 +131,45 @@ fn bad_input_is_an_error() {
     let prior = library.compile("Polygonal prior").unwrap();
     assert!(infer(&prior, &input, &params).is_err());
 }
+
+mod random_input {
+    use proptest::prelude::*;
+    use slam_priors::{Library, Params, ScanInput, analyze, infer};
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+        /// Arbitrary ranges (any shape, clutter, repeated bearings) never panic the engine
+        /// or the analysis: they give a solution or an error.
+        #[test]
+        fn arbitrary_scans_never_panic(
+            base in 0.5..5.0_f64,
+            steps in prop::collection::vec(-0.08..0.08_f64, 2..40),
+            jumps in prop::collection::vec(0.05..20.0_f64, 0..4),
+            prior in 0..7_usize,
+        ) {
+            // A random walk of ranges (mostly one surface), with a few arbitrary readings.
+            let mut ranges: Vec<f64> = steps
+                .iter()
+                .scan(base, |r, s| {
+                    *r = (*r + s).max(0.05);
+                    Some(*r)
+                })
+                .collect();
+            for (k, &j) in jumps.iter().enumerate() {
+                let at = (k * 7) % ranges.len();
+                ranges[at] = j;
+            }
+            let library = Library::shipped().unwrap();
+            let name = &library.names()[prior];
+            let prior = library.compile(name).unwrap();
+            let phi: Vec<f64> = (0..ranges.len()).map(|i| -1.5 + 0.05 * i as f64).collect();
+            let input = ScanInput::new(phi, ranges, 0.02).unwrap();
+            if let Ok(solution) = infer(&prior, &input, &Params::default())
+                && solution.feasible
+            {
+                let _ = analyze(&prior, &solution);
+            }
+        }
+    }
+}

@@ -49,6 +49,10 @@ pub struct PriorArgs {
     /// Compute the degrees of freedom and the posterior covariance.
     #[arg(long)]
     pub dof: bool,
+    /// List and draw the straight regions as wall segments (what a wall front-end would
+    /// take).
+    #[arg(long)]
+    pub walls: bool,
     /// Seed of the simulation.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -353,6 +357,25 @@ pub fn run(args: &PriorArgs) -> Result<()> {
         format!("{} outliers (out of INMODEL)", outliers.len()),
         palette::PATH,
     );
+    if args.walls {
+        let walls = solution.straight_regions(5, 1e-4);
+        for w in &walls {
+            let (a, b) = (
+                Vector2::new(w.ends[0][0], w.ends[0][1]),
+                Vector2::new(w.ends[1][0], w.ends[1][1]),
+            );
+            figure.segment(a, b, palette::WALL, 5);
+            println!(
+                "wall: readings {}-{} ({} points), normal {:.4} rad, distance {:.3} m, ends \
+                 ({:.3}, {:.3}) ({:.3}, {:.3})",
+                w.readings.0, w.readings.1, w.points, w.normal, w.distance, a.x, a.y, b.x, b.y
+            );
+        }
+        figure.legend(
+            format!("{} straight regions as wall segments", walls.len()),
+            palette::WALL,
+        );
+    }
     figure.marker(Vector2::zeros(), palette::TRUE_PATH, 14, true);
     figure.legend("sensor", palette::TRUE_PATH);
     figure.save(&args.out)?;
@@ -376,6 +399,7 @@ mod tests {
             outliers: 2,
             fov: None,
             dof: true,
+            walls: true,
             seed: 3,
             out,
         }

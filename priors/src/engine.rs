@@ -245,7 +245,71 @@ pub struct Solution {
     pub objective: f64,
 }
 
+/// A straight region as a wall segment in the sensor frame, for a wall-based front-end.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RegionSegment {
+    /// First and last reading of the region.
+    pub readings: (usize, usize),
+    /// The ends: the first and last corrected readings projected on the region's line, m.
+    pub ends: [[f64; 2]; 2],
+    /// Normal of the line (towards the sensor), rad.
+    pub normal: f64,
+    /// Distance of the line from the sensor, m.
+    pub distance: f64,
+    /// Number of readings.
+    pub points: usize,
+}
+
 impl Solution {
+    /// The regions whose corrected normals all agree within `tolerance` rad (every region
+    /// under a polygonal prior) and that hold at least `min_points` readings, as segments.
+    pub fn straight_regions(&self, min_points: usize, tolerance: f64) -> Vec<RegionSegment> {
+        self.regions()
+            .into_iter()
+            .filter(|r| r.len() >= min_points.max(2))
+            .filter_map(|region| {
+                let first = self.alpha[region[0]];
+                let straight = region.iter().all(|&i| {
+                    let d = self.alpha[i] - first;
+                    d.sin().atan2(d.cos()).abs() <= tolerance
+                });
+                if !straight {
+                    return None;
+                }
+                let (mut sx, mut sy) = (0.0, 0.0);
+                for &i in &region {
+                    sx += self.alpha[i].cos();
+                    sy += self.alpha[i].sin();
+                }
+                let normal = sy.atan2(sx);
+                let n = [normal.cos(), normal.sin()];
+                let points: Vec<[f64; 2]> = region
+                    .iter()
+                    .map(|&i| {
+                        let (s, c) = self.phi[i].sin_cos();
+                        [self.rho[i] * c, self.rho[i] * s]
+                    })
+                    .collect();
+                let distance = -points
+                    .iter()
+                    .map(|p| n[0] * p[0] + n[1] * p[1])
+                    .sum::<f64>()
+                    / points.len() as f64;
+                let project = |p: [f64; 2]| {
+                    let off = n[0] * p[0] + n[1] * p[1] + distance;
+                    [p[0] - off * n[0], p[1] - off * n[1]]
+                };
+                Some(RegionSegment {
+                    readings: (region[0], region[region.len() - 1]),
+                    ends: [project(points[0]), project(points[points.len() - 1])],
+                    normal,
+                    distance,
+                    points: region.len(),
+                })
+            })
+            .collect()
+    }
+
     /// Indices of the readings in INMODEL.
     pub fn inliers(&self) -> Vec<usize> {
         (0..self.in_model.len())

@@ -45,6 +45,6 @@ pub mod scene;
 
 pub use compile::{Library, MAX_ORDER, Prior, SHIPPED, parse_prior};
 pub use dof::{Dof, analyze};
-pub use engine::{Params, ScanInput, Solution, infer};
+pub use engine::{Params, RegionSegment, ScanInput, Solution, infer};
 pub use error::{PriorError, Result};
 pub use parser::Topology;

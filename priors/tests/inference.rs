@@ -173,3 +173,34 @@ mod random_input {
         }
     }
 }
+
+/// The regions of a polygonal solution as wall segments: one per wall of a rectangular room
+/// seen from its centre, on the true walls.
+#[test]
+fn straight_regions_are_the_walls() {
+    let library = Library::shipped().unwrap();
+    let prior = library.compile("Rectangular prior").unwrap();
+    let scene = Scene::rectangle(4.0, 3.0);
+    let beams = 120;
+    let corner = (1.5_f64).atan2(2.0);
+    let increment = std::f64::consts::TAU / beams as f64;
+    let sim = full_scan(
+        &scene,
+        [2.0, 1.5, 0.0],
+        corner + 0.5 * increment,
+        beams,
+        0.005,
+        0,
+        5,
+    );
+    let input = ScanInput::from_scan(&sim.scan, 0.005).unwrap();
+    let solution = infer(&prior, &input, &Params::default()).unwrap();
+    let walls = solution.straight_regions(5, 1e-6);
+    assert_eq!(walls.len(), 4);
+    // Seen from the room's centre the walls are 2 m, 1.5 m, 2 m and 1.5 m away.
+    let mut distances: Vec<f64> = walls.iter().map(|w| w.distance).collect();
+    distances.sort_by(f64::total_cmp);
+    for (d, truth) in distances.iter().zip([1.5, 1.5, 2.0, 2.0]) {
+        assert!((d - truth).abs() < 0.01, "{distances:?}");
+    }
+}

@@ -12,6 +12,7 @@ mod outputs;
 mod pipeline;
 mod plot;
 mod polygon;
+mod prior;
 mod run;
 mod simulate;
 
@@ -41,6 +42,9 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Compare an estimated trajectory with ground truth (ATE, RPE).
     Eval(eval::EvalArgs),
+    /// Run a structure prior (priorlets) on one scan and draw the corrected readings, the
+    /// region and surface boundaries and the outliers.
+    Prior(prior::PriorArgs),
 }
 
 fn main() {
@@ -52,6 +56,7 @@ fn main() {
         Command::Simulate(args) => simulate::run(args),
         Command::Consistency(args) => consistency::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::Prior(args) => prior::run(args),
     };
     if let Err(error) = result {
         eprintln!("slam: {error}");

@@ -1,0 +1,1235 @@
+//! The inference engine (section 3 of the source): Problem 4, maximize
+//! `log p(x | measured) + h_T(x) + gamma |INMODEL|` subject to the priorlets' equalities (3)
+//! and inequalities (4) for topology `T`, and the bounds (5), over `x = (rho, alpha)`.
+//!
+//! - Inner loop (Algorithm 2): penalty homotopy for the prior's constraints
+//!   (`lambda f^2`, `lambda max(0, g)^2`, the smallest branch of a disjunction), log-barrier
+//!   for the bounds, Newton steps with backtracking. Gradients and Hessians are exact
+//!   (second-order dual numbers through the priorlet's tape). The Hessian is convexified
+//!   window by window: each priorlet window's Hessian (energies plus penalties) has its
+//!   negative eigenvalues raised to a small positive value, so the banded sum is positive
+//!   definite and is factored by a banded Cholesky in `O(n)`.
+//! - Outer loop (Algorithm 1): every reading in INMODEL and the strictest topology first;
+//!   while infeasible, the link with the largest penalty is relaxed (same region -> different
+//!   region -> different surface) and the readings of regions smaller than
+//!   [`Params::min_region_points`] leave INMODEL (outliers). A last pass moves each region
+//!   boundary by one reading while that lowers the fit cost (a small local search the source
+//!   lists as future work).
+
+use serde::{Deserialize, Serialize};
+use slam_sensors::LaserScan;
+
+use crate::compile::{AtomKind, Prior, Priorlet};
+use crate::dual::{Dual, Scalar};
+use crate::error::{PriorError, Result};
+use crate::parser::Topology;
+
+/// The readings of one scan given to the engine: bearings, measured ranges and their
+/// standard deviations, in scan order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScanInput {
+    /// Bearing of each reading in the sensor frame, rad (`phi_i`).
+    pub phi: Vec<f64>,
+    /// Measured range of each reading, m.
+    pub rho: Vec<f64>,
+    /// Standard deviation of each range, m.
+    pub sigma: Vec<f64>,
+    /// Beam index of each reading in the scan it came from.
+    pub beam: Vec<usize>,
+}
+
+impl ScanInput {
+    /// Readings with one standard deviation `sigma` for all.
+    pub fn new(phi: Vec<f64>, rho: Vec<f64>, sigma: f64) -> Result<ScanInput> {
+        let n = rho.len();
+        let input = ScanInput {
+            beam: (0..n).collect(),
+            sigma: vec![sigma; n],
+            phi,
+            rho,
+        };
+        input.validate()?;
+        Ok(input)
+    }
+
+    /// The valid readings of a laser scan, with range standard deviation `sigma`.
+    pub fn from_scan(scan: &LaserScan, sigma: f64) -> Result<ScanInput> {
+        let points = scan.points();
+        let input = ScanInput {
+            phi: points.iter().map(|p| p.bearing).collect(),
+            rho: points.iter().map(|p| p.range).collect(),
+            sigma: vec![sigma; points.len()],
+            beam: points.iter().map(|p| p.index).collect(),
+        };
+        input.validate()?;
+        Ok(input)
+    }
+
+    /// Number of readings.
+    pub fn len(&self) -> usize {
+        self.rho.len()
+    }
+
+    /// Whether there are no readings.
+    pub fn is_empty(&self) -> bool {
+        self.rho.is_empty()
+    }
+
+    fn validate(&self) -> Result<()> {
+        let n = self.rho.len();
+        if self.phi.len() != n || self.sigma.len() != n || self.beam.len() != n {
+            return Err(PriorError::InvalidInput(format!(
+                "{} bearings, {} ranges, {} deviations and {} beam indices",
+                self.phi.len(),
+                n,
+                self.sigma.len(),
+                self.beam.len()
+            )));
+        }
+        for i in 0..n {
+            if !(self.rho[i].is_finite() && self.rho[i] > 0.0 && self.phi[i].is_finite()) {
+                return Err(PriorError::InvalidInput(format!(
+                    "reading {i}: range {} at bearing {}",
+                    self.rho[i], self.phi[i]
+                )));
+            }
+            if !(self.sigma[i].is_finite() && self.sigma[i] > 0.0) {
+                return Err(PriorError::InvalidInput(format!(
+                    "reading {i}: standard deviation {}",
+                    self.sigma[i]
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Parameters of the inference engine.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Params {
+    /// Each range may move at most this many standard deviations from its reading (source
+    /// section 3.2: 4).
+    pub bound_sigmas: f64,
+    /// Probability `beta` that a reading is described by the prior; the objective gains
+    /// `gamma = ln(beta / (1 - beta))` per reading in INMODEL.
+    pub inlier_probability: f64,
+    /// Regions with fewer readings leave INMODEL (outliers). `None`: twice the order.
+    pub min_region_points: Option<usize>,
+    /// Neighbours on each side used to estimate the initial normals.
+    pub normal_window: usize,
+    /// Smallest half-width of the bounds of a normal, degrees.
+    pub min_normal_bound_deg: f64,
+    /// A topology is feasible when every constraint is violated by less than this.
+    pub feasibility_tolerance: f64,
+    /// First penalty weight `lambda`.
+    pub penalty_start: f64,
+    /// Factor of `lambda` between homotopy stages.
+    pub penalty_factor: f64,
+    /// Largest penalty weight; still infeasible there means the topology must be relaxed.
+    pub penalty_max: f64,
+    /// First weight `mu` of the log-barrier of the bounds.
+    pub barrier_start: f64,
+    /// Factor of `mu` between stages (below 1).
+    pub barrier_factor: f64,
+    /// Newton steps per homotopy stage, at most.
+    pub max_newton_steps: usize,
+    /// A stage whose largest violation is above this fraction of the previous stage's, twice
+    /// in a row, ends the inner loop as infeasible (the violation of a feasible topology falls
+    /// with `1 / lambda`). 1 disables the test.
+    pub stall_ratio: f64,
+    /// Homotopy stages run after the first feasible one, to tighten the constraints further
+    /// (the violation falls by `penalty_factor` per stage) before the degrees of freedom are
+    /// computed.
+    pub polish_stages: usize,
+    /// Geometric first guess of the topology (the source's Fig. 6a): two consecutive
+    /// readings farther apart than a surface seen at this incidence angle (degrees from its
+    /// normal) would put them, plus 8 sigma, start on different surfaces. 90 or more: off.
+    pub max_incidence_deg: f64,
+    /// Outer iterations (relaxations), at most. `None`: three per reading.
+    pub max_outer_iterations: Option<usize>,
+    /// Move region boundaries by one reading while that lowers the fit cost.
+    pub refine_boundaries: bool,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params {
+            bound_sigmas: 4.0,
+            inlier_probability: 0.9,
+            min_region_points: None,
+            normal_window: 3,
+            min_normal_bound_deg: 5.0,
+            feasibility_tolerance: 1e-5,
+            penalty_start: 1.0,
+            penalty_factor: 10.0,
+            penalty_max: 1e12,
+            barrier_start: 1.0,
+            barrier_factor: 0.1,
+            max_newton_steps: 30,
+            stall_ratio: 0.5,
+            polish_stages: 2,
+            max_incidence_deg: 85.0,
+            max_outer_iterations: None,
+            refine_boundaries: true,
+        }
+    }
+}
+
+impl Params {
+    fn validate(&self) -> Result<()> {
+        let ok = self.bound_sigmas > 0.0
+            && self.inlier_probability > 0.0
+            && self.inlier_probability < 1.0
+            && self.feasibility_tolerance > 0.0
+            && self.penalty_start > 0.0
+            && self.penalty_factor > 1.0
+            && self.penalty_max >= self.penalty_start
+            && self.barrier_start > 0.0
+            && self.barrier_factor > 0.0
+            && self.barrier_factor < 1.0
+            && self.min_normal_bound_deg >= 0.0
+            && self.max_newton_steps > 0;
+        if ok {
+            Ok(())
+        } else {
+            Err(PriorError::InvalidInput(format!(
+                "parameters out of range: {self:?}"
+            )))
+        }
+    }
+}
+
+/// The relation between two consecutive readings of INMODEL.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct Link {
+    /// Index (into the scan input) of the first reading.
+    pub from: usize,
+    /// Index of the next reading in INMODEL.
+    pub to: usize,
+    /// Same region, different region or different surface.
+    pub topology: Topology,
+}
+
+/// The result of [`infer`].
+#[derive(Clone, Debug)]
+pub struct Solution {
+    /// Name of the prior used.
+    pub prior: String,
+    /// Bearings of the readings (copied from the input).
+    pub phi: Vec<f64>,
+    /// Measured ranges (copied from the input).
+    pub measured: Vec<f64>,
+    /// Range standard deviations (copied from the input).
+    pub sigma: Vec<f64>,
+    /// Corrected ranges (outliers keep their measured range).
+    pub rho: Vec<f64>,
+    /// Corrected surface normals, rad (NaN for outliers).
+    pub alpha: Vec<f64>,
+    /// Standard deviation of the initial normal estimates (the prior covariance of `alpha`).
+    pub alpha_sigma: Vec<f64>,
+    /// Whether each reading is described by the prior (INMODEL).
+    pub in_model: Vec<bool>,
+    /// Topology between consecutive readings of INMODEL.
+    pub links: Vec<Link>,
+    /// Whether the final topology is feasible.
+    pub feasible: bool,
+    /// Largest constraint violation at the solution.
+    pub max_violation: f64,
+    /// Outer iterations (inner optimizations) used.
+    pub outer_iterations: usize,
+    /// Fit cost: `sum (rho - measured)^2 / (2 sigma^2)` plus the energies.
+    pub fit_cost: f64,
+    /// The negative log-posterior of Problem 4 up to a constant: fit cost minus
+    /// `gamma |INMODEL|`.
+    pub objective: f64,
+}
+
+/// A straight region as a wall segment in the sensor frame, for a wall-based front-end.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RegionSegment {
+    /// First and last reading of the region.
+    pub readings: (usize, usize),
+    /// The ends: the first and last corrected readings projected on the region's line, m.
+    pub ends: [[f64; 2]; 2],
+    /// Normal of the line (towards the sensor), rad.
+    pub normal: f64,
+    /// Distance of the line from the sensor, m.
+    pub distance: f64,
+    /// Number of readings.
+    pub points: usize,
+}
+
+impl Solution {
+    /// The regions whose corrected normals all agree within `tolerance` rad (every region
+    /// under a polygonal prior) and that hold at least `min_points` readings, as segments.
+    pub fn straight_regions(&self, min_points: usize, tolerance: f64) -> Vec<RegionSegment> {
+        self.regions()
+            .into_iter()
+            .filter(|r| r.len() >= min_points.max(2))
+            .filter_map(|region| {
+                let first = self.alpha[region[0]];
+                let straight = region.iter().all(|&i| {
+                    let d = self.alpha[i] - first;
+                    d.sin().atan2(d.cos()).abs() <= tolerance
+                });
+                if !straight {
+                    return None;
+                }
+                let (mut sx, mut sy) = (0.0, 0.0);
+                for &i in &region {
+                    sx += self.alpha[i].cos();
+                    sy += self.alpha[i].sin();
+                }
+                let normal = sy.atan2(sx);
+                let n = [normal.cos(), normal.sin()];
+                let points: Vec<[f64; 2]> = region
+                    .iter()
+                    .map(|&i| {
+                        let (s, c) = self.phi[i].sin_cos();
+                        [self.rho[i] * c, self.rho[i] * s]
+                    })
+                    .collect();
+                let distance = -points
+                    .iter()
+                    .map(|p| n[0] * p[0] + n[1] * p[1])
+                    .sum::<f64>()
+                    / points.len() as f64;
+                let project = |p: [f64; 2]| {
+                    let off = n[0] * p[0] + n[1] * p[1] + distance;
+                    [p[0] - off * n[0], p[1] - off * n[1]]
+                };
+                Some(RegionSegment {
+                    readings: (region[0], region[region.len() - 1]),
+                    ends: [project(points[0]), project(points[points.len() - 1])],
+                    normal,
+                    distance,
+                    points: region.len(),
+                })
+            })
+            .collect()
+    }
+
+    /// Indices of the readings in INMODEL.
+    pub fn inliers(&self) -> Vec<usize> {
+        (0..self.in_model.len())
+            .filter(|&i| self.in_model[i])
+            .collect()
+    }
+
+    /// Indices of the readings outside INMODEL.
+    pub fn outliers(&self) -> Vec<usize> {
+        (0..self.in_model.len())
+            .filter(|&i| !self.in_model[i])
+            .collect()
+    }
+
+    fn groups(&self, split: impl Fn(Topology) -> bool) -> Vec<Vec<usize>> {
+        let inliers = self.inliers();
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        let mut current = Vec::new();
+        for (k, &i) in inliers.iter().enumerate() {
+            current.push(i);
+            let end = k + 1 == inliers.len() || self.links.get(k).is_none_or(|l| split(l.topology));
+            if end {
+                groups.push(std::mem::take(&mut current));
+            }
+        }
+        groups
+    }
+
+    /// Regions: runs of INMODEL readings joined by same-region links.
+    pub fn regions(&self) -> Vec<Vec<usize>> {
+        self.groups(|t| t != Topology::SameRegion)
+    }
+
+    /// Surfaces: runs of INMODEL readings not separated by a different-surface link.
+    pub fn surfaces(&self) -> Vec<Vec<usize>> {
+        self.groups(|t| t == Topology::DifferentSurface)
+    }
+
+    /// The corrected readings as points in the sensor frame (NaN-free: INMODEL only).
+    pub fn corrected_points(&self) -> Vec<(usize, [f64; 2])> {
+        self.inliers()
+            .into_iter()
+            .map(|i| {
+                let (s, c) = self.phi[i].sin_cos();
+                (i, [self.rho[i] * c, self.rho[i] * s])
+            })
+            .collect()
+    }
+}
+
+/// Everything an inner optimization needs, for the readings of INMODEL (compressed indices).
+pub(crate) struct Problem<'a> {
+    pub prior: &'a Prior,
+    pub phi: Vec<f64>,
+    pub rho: Vec<f64>,
+    pub w_rho: Vec<f64>,
+    pub alpha0: Vec<f64>,
+    pub alpha_sigma: Vec<f64>,
+    pub lo: Vec<f64>,
+    pub hi: Vec<f64>,
+    /// `(first reading, topology)` of each window of `order` consecutive readings.
+    pub windows: Vec<(usize, Topology)>,
+}
+
+/// The topology a window of consecutive links sees.
+pub(crate) fn window_topology(links: &[Topology]) -> Topology {
+    if links.contains(&Topology::DifferentSurface) {
+        Topology::DifferentSurface
+    } else if links.contains(&Topology::DifferentRegion) {
+        Topology::DifferentRegion
+    } else {
+        Topology::SameRegion
+    }
+}
+
+pub(crate) fn windows_of(order: usize, links: &[Topology], m: usize) -> Vec<(usize, Topology)> {
+    if m < order {
+        return Vec::new();
+    }
+    (0..=m - order)
+        .map(|s| (s, window_topology(&links[s..s + order - 1])))
+        .collect()
+}
+
+struct Evaluation {
+    value: f64,
+    gradient: Vec<f64>,
+    band: Band,
+}
+
+/// A symmetric banded matrix (lower band stored).
+struct Band {
+    n: usize,
+    b: usize,
+    data: Vec<f64>,
+}
+
+impl Band {
+    fn new(n: usize, b: usize) -> Band {
+        Band {
+            n,
+            b,
+            data: vec![0.0; n * (b + 1)],
+        }
+    }
+    fn at(&mut self, i: usize, j: usize) -> &mut f64 {
+        let (i, j) = if i >= j { (i, j) } else { (j, i) };
+        &mut self.data[i * (self.b + 1) + (i - j)]
+    }
+    fn get(&self, i: usize, j: usize) -> f64 {
+        let (i, j) = if i >= j { (i, j) } else { (j, i) };
+        if i - j > self.b {
+            return 0.0;
+        }
+        self.data[i * (self.b + 1) + (i - j)]
+    }
+    /// Solves `A d = rhs` by banded Cholesky with `shift` added to the diagonal.
+    fn solve(&self, rhs: &[f64], shift: f64) -> Option<Vec<f64>> {
+        let (n, b) = (self.n, self.b);
+        let mut l = Band::new(n, b);
+        for j in 0..n {
+            let k0 = j.saturating_sub(b);
+            let mut s = self.get(j, j) + shift;
+            for k in k0..j {
+                s -= l.get(j, k) * l.get(j, k);
+            }
+            if s.is_nan() || s <= 0.0 || !s.is_finite() {
+                return None;
+            }
+            let d = s.sqrt();
+            *l.at(j, j) = d;
+            for i in j + 1..(j + b + 1).min(n) {
+                let mut s = self.get(i, j);
+                for k in i.saturating_sub(b)..j {
+                    s -= l.get(i, k) * l.get(j, k);
+                }
+                *l.at(i, j) = s / d;
+            }
+        }
+        let mut y = rhs.to_vec();
+        for i in 0..n {
+            let mut s = y[i];
+            for k in i.saturating_sub(b)..i {
+                s -= l.get(i, k) * y[k];
+            }
+            y[i] = s / l.get(i, i);
+        }
+        for i in (0..n).rev() {
+            let mut s = y[i];
+            for k in i + 1..(i + b + 1).min(n) {
+                s -= l.get(k, i) * y[k];
+            }
+            y[i] = s / l.get(i, i);
+        }
+        y.iter().all(|v| v.is_finite()).then_some(y)
+    }
+}
+
+/// The penalty of one constraint (smallest branch) and the index of that branch.
+fn constraint_penalty(values: &[f64], branches: &[crate::compile::Atom]) -> (f64, usize) {
+    let mut best = (f64::INFINITY, 0);
+    for (k, atom) in branches.iter().enumerate() {
+        let v = atom.violation(values[atom.node]);
+        let p = v * v;
+        if p < best.0 || !best.0.is_finite() {
+            best = (p, k);
+        }
+    }
+    best
+}
+
+impl Problem<'_> {
+    fn dim(&self) -> usize {
+        2 * self.rho.len()
+    }
+
+    fn local(&self, x: &[f64], start: usize) -> Vec<f64> {
+        x[2 * start..2 * (start + self.prior.order)].to_vec()
+    }
+
+    fn local_phi(&self, start: usize) -> &[f64] {
+        &self.phi[start..start + self.prior.order]
+    }
+
+    /// The data term, energies, penalties and barrier at `x` (value only). `None` outside
+    /// the bounds or when not finite.
+    fn value(&self, x: &[f64], lambda: f64, mu: f64, buffer: &mut Vec<f64>) -> Option<f64> {
+        let mut total = 0.0;
+        for j in 0..self.rho.len() {
+            let dr = x[2 * j] - self.rho[j];
+            let da = (x[2 * j + 1] - self.alpha0[j]) / self.alpha_sigma[j];
+            total += 0.5 * (self.w_rho[j] * dr * dr + da * da);
+        }
+        for i in 0..x.len() {
+            let (a, b) = (x[i] - self.lo[i], self.hi[i] - x[i]);
+            if !(a > 0.0 && b > 0.0) {
+                return None;
+            }
+            total -= mu * (a.ln() + b.ln());
+        }
+        for &(start, topology) in &self.windows {
+            let priorlet = self.prior.priorlet(topology);
+            if priorlet.is_empty() {
+                continue;
+            }
+            priorlet.eval(&self.local(x, start), self.local_phi(start), buffer);
+            for &e in &priorlet.energies {
+                total += buffer[e];
+            }
+            for c in &priorlet.constraints {
+                total += lambda * constraint_penalty(buffer, &c.branches).0;
+            }
+        }
+        total.is_finite().then_some(total)
+    }
+
+    /// Fit cost: data term of the ranges plus the energies.
+    pub fn fit_cost(&self, x: &[f64]) -> f64 {
+        let mut buffer = Vec::new();
+        let mut total = 0.0;
+        for j in 0..self.rho.len() {
+            let dr = x[2 * j] - self.rho[j];
+            total += 0.5 * self.w_rho[j] * dr * dr;
+        }
+        for &(start, topology) in &self.windows {
+            let priorlet = self.prior.priorlet(topology);
+            priorlet.eval(&self.local(x, start), self.local_phi(start), &mut buffer);
+            for &e in &priorlet.energies {
+                total += buffer[e];
+            }
+        }
+        total
+    }
+
+    /// Largest violation per window.
+    pub fn window_violations(&self, x: &[f64]) -> Vec<f64> {
+        let mut buffer = Vec::new();
+        self.windows
+            .iter()
+            .map(|&(start, topology)| {
+                let priorlet = self.prior.priorlet(topology);
+                priorlet.eval(&self.local(x, start), self.local_phi(start), &mut buffer);
+                priorlet
+                    .constraints
+                    .iter()
+                    .map(|c| constraint_penalty(&buffer, &c.branches).0.sqrt())
+                    .fold(0.0, f64::max)
+            })
+            .collect()
+    }
+
+    fn evaluate(&self, x: &[f64], lambda: f64, mu: f64) -> Evaluation {
+        let n = self.dim();
+        let order = self.prior.order;
+        let mut band = Band::new(n, 2 * order - 1);
+        let mut gradient = vec![0.0; n];
+        let mut value = 0.0;
+        for j in 0..self.rho.len() {
+            let dr = x[2 * j] - self.rho[j];
+            let wa = 1.0 / (self.alpha_sigma[j] * self.alpha_sigma[j]);
+            let da = x[2 * j + 1] - self.alpha0[j];
+            value += 0.5 * (self.w_rho[j] * dr * dr + wa * da * da);
+            gradient[2 * j] += self.w_rho[j] * dr;
+            gradient[2 * j + 1] += wa * da;
+            *band.at(2 * j, 2 * j) += self.w_rho[j];
+            *band.at(2 * j + 1, 2 * j + 1) += wa;
+        }
+        for i in 0..n {
+            let (a, b) = (x[i] - self.lo[i], self.hi[i] - x[i]);
+            value -= mu * (a.ln() + b.ln());
+            gradient[i] += mu * (-1.0 / a + 1.0 / b);
+            *band.at(i, i) += mu * (1.0 / (a * a) + 1.0 / (b * b));
+        }
+        match order {
+            2 => self.add_windows::<4>(x, lambda, &mut value, &mut gradient, &mut band),
+            3 => self.add_windows::<6>(x, lambda, &mut value, &mut gradient, &mut band),
+            _ => self.add_windows::<8>(x, lambda, &mut value, &mut gradient, &mut band),
+        }
+        Evaluation {
+            value,
+            gradient,
+            band,
+        }
+    }
+
+    fn add_windows<const N: usize>(
+        &self,
+        x: &[f64],
+        lambda: f64,
+        value: &mut f64,
+        gradient: &mut [f64],
+        band: &mut Band,
+    ) {
+        let k = 2 * self.prior.order;
+        let mut buffer: Vec<Dual<N>> = Vec::new();
+        for &(start, topology) in &self.windows {
+            let priorlet = self.prior.priorlet(topology);
+            if priorlet.is_empty() {
+                continue;
+            }
+            let local: Vec<Dual<N>> = (0..k)
+                .map(|i| Dual::variable(x[2 * start + i], i))
+                .collect();
+            let (v, g, h) =
+                window_terms(priorlet, &local, self.local_phi(start), lambda, &mut buffer);
+            *value += v;
+            let h = convexify::<N>(&h, k, |largest| 1e-9 * largest.max(1.0));
+            for i in 0..k {
+                gradient[2 * start + i] += g[i];
+                for j in 0..=i {
+                    *band.at(2 * start + i, 2 * start + j) += h[i][j];
+                }
+            }
+        }
+    }
+}
+
+/// Value, gradient and Hessian of a window's energies plus `lambda` times its penalties.
+fn window_terms<const N: usize>(
+    priorlet: &Priorlet,
+    local: &[Dual<N>],
+    phi: &[f64],
+    lambda: f64,
+    buffer: &mut Vec<Dual<N>>,
+) -> (f64, [f64; N], [[f64; N]; N]) {
+    priorlet.eval(local, phi, buffer);
+    let mut total = Dual::<N>::constant(0.0);
+    for &e in &priorlet.energies {
+        total = total + buffer[e];
+    }
+    let values: Vec<f64> = buffer.iter().map(|d| d.v).collect();
+    for c in &priorlet.constraints {
+        let (penalty, branch) = constraint_penalty(&values, &c.branches);
+        if penalty > 0.0 {
+            let atom = c.branches[branch];
+            let f = buffer[atom.node];
+            let active = match atom.kind {
+                AtomKind::Equal => true,
+                AtomKind::AtMost => f.v > 0.0,
+            };
+            if active {
+                total = total + Dual::constant(lambda) * f * f;
+            }
+        }
+    }
+    (total.v, total.g, total.h)
+}
+
+/// Eigen-decomposition of the leading `k x k` block of a symmetric matrix by cyclic Jacobi
+/// rotations: `(eigenvalues, eigenvectors as columns)`.
+pub(crate) fn jacobi_eigen<const N: usize>(
+    a: &[[f64; N]; N],
+    k: usize,
+) -> ([f64; N], [[f64; N]; N]) {
+    let mut a = *a;
+    let mut v = [[0.0; N]; N];
+    for (i, row) in v.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    for _ in 0..50 {
+        let mut off = 0.0;
+        let mut diag = 0.0;
+        for i in 0..k {
+            diag += a[i][i] * a[i][i];
+            for j in 0..k {
+                if i != j {
+                    off += a[i][j] * a[i][j];
+                }
+            }
+        }
+        if off <= 1e-30 * diag.max(1e-300) {
+            break;
+        }
+        for p in 0..k {
+            for q in p + 1..k {
+                if a[p][q].abs() < 1e-300 {
+                    continue;
+                }
+                let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+                let t = if theta == 0.0 { 1.0 } else { t };
+                let c = 1.0 / (t * t + 1.0).sqrt();
+                let s = t * c;
+                for r in 0..k {
+                    let (arp, arq) = (a[r][p], a[r][q]);
+                    a[r][p] = c * arp - s * arq;
+                    a[r][q] = s * arp + c * arq;
+                }
+                for r in 0..k {
+                    let (apr, aqr) = (a[p][r], a[q][r]);
+                    a[p][r] = c * apr - s * aqr;
+                    a[q][r] = s * apr + c * aqr;
+                }
+                for row in v.iter_mut().take(k) {
+                    let (vp, vq) = (row[p], row[q]);
+                    row[p] = c * vp - s * vq;
+                    row[q] = s * vp + c * vq;
+                }
+            }
+        }
+    }
+    let mut values = [0.0; N];
+    for i in 0..k {
+        values[i] = a[i][i];
+    }
+    (values, v)
+}
+
+/// The symmetric `k x k` matrix `h` with its negative eigenvalues raised to `floor_of(largest)`
+/// (Algorithm 2, line 12: "convexify").
+pub(crate) fn convexify<const N: usize>(
+    h: &[[f64; N]; N],
+    k: usize,
+    floor_of: impl Fn(f64) -> f64,
+) -> [[f64; N]; N] {
+    let mut m = [[0.0; N]; N];
+    for i in 0..k {
+        for j in 0..k {
+            m[i][j] = 0.5 * (h[i][j] + h[j][i]);
+        }
+    }
+    if !m.iter().flatten().all(|v| v.is_finite()) {
+        return [[0.0; N]; N];
+    }
+    let (values, vectors) = jacobi_eigen(&m, k);
+    let largest = values[..k].iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+    let floor = floor_of(largest);
+    if values[..k].iter().all(|&v| v >= floor) {
+        return m;
+    }
+    let mut out = [[0.0; N]; N];
+    for e in 0..k {
+        let value = values[e].max(floor);
+        for i in 0..k {
+            for j in 0..k {
+                out[i][j] += value * vectors[i][e] * vectors[j][e];
+            }
+        }
+    }
+    out
+}
+
+/// What an inner optimization returns.
+pub(crate) struct Inner {
+    pub x: Vec<f64>,
+    pub feasible: bool,
+    pub max_violation: f64,
+    /// Penalty attributed to each link (sum of squared violations of the windows across it).
+    pub link_penalties: Vec<f64>,
+}
+
+/// Algorithm 2: the continuous optimization of `x` for a fixed INMODEL and topology.
+pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<Inner> {
+    let mut x: Vec<f64> = (0..problem.rho.len())
+        .flat_map(|j| [problem.rho[j], problem.alpha0[j]])
+        .collect();
+    let mut lambda = params.penalty_start;
+    let mut mu = params.barrier_start;
+    let mut buffer = Vec::new();
+    let mut history = Vec::new();
+    let mut polish = 0;
+    loop {
+        newton(problem, &mut x, lambda, mu, params, &mut buffer)?;
+        let violations = problem.window_violations(&x);
+        let max_violation = violations.iter().fold(0.0, |a: f64, &v| a.max(v));
+        let feasible = max_violation < params.feasibility_tolerance;
+        // A feasible topology's violation falls about as fast as lambda grows; one that
+        // stalls over two stages (past the first three) will not become feasible.
+        history.push(max_violation);
+        let h = history.len();
+        let stalled = h >= 5
+            && history[h - 1] > params.stall_ratio * history[h - 2]
+            && history[h - 2] > params.stall_ratio * history[h - 3];
+        if feasible {
+            polish += 1;
+        }
+        let polished = feasible && polish > params.polish_stages;
+        if polished || (!feasible && stalled) || lambda >= params.penalty_max {
+            let m = problem.rho.len();
+            let mut link_penalties = vec![0.0; m.saturating_sub(1)];
+            for (&(start, _), v) in problem.windows.iter().zip(&violations) {
+                for link in start..start + problem.prior.order - 1 {
+                    link_penalties[link] += v * v;
+                }
+            }
+            return Ok(Inner {
+                x,
+                feasible,
+                max_violation,
+                link_penalties,
+            });
+        }
+        lambda *= params.penalty_factor;
+        mu *= params.barrier_factor;
+    }
+}
+
+fn newton(
+    problem: &Problem,
+    x: &mut Vec<f64>,
+    lambda: f64,
+    mu: f64,
+    params: &Params,
+    buffer: &mut Vec<f64>,
+) -> Result<usize> {
+    for step_count in 0..params.max_newton_steps {
+        let eval = problem.evaluate(x, lambda, mu);
+        if !eval.value.is_finite() || eval.gradient.iter().any(|g| !g.is_finite()) {
+            return Err(PriorError::Numerical(
+                "objective or gradient not finite during the Newton steps".into(),
+            ));
+        }
+        let rhs: Vec<f64> = eval.gradient.iter().map(|g| -g).collect();
+        let mut shift = 0.0;
+        let direction = loop {
+            if let Some(d) = eval.band.solve(&rhs, shift) {
+                break d;
+            }
+            shift = if shift == 0.0 { 1e-8 } else { shift * 100.0 };
+            if shift > 1e12 {
+                return Err(PriorError::Numerical("Hessian cannot be factored".into()));
+            }
+        };
+        let slope: f64 = eval
+            .gradient
+            .iter()
+            .zip(&direction)
+            .map(|(g, d)| g * d)
+            .sum();
+        if -slope < 1e-12 * (1.0 + eval.value.abs()) {
+            return Ok(step_count);
+        }
+        let mut step = 1.0;
+        let mut accepted = false;
+        let mut trial = x.clone();
+        while step > 1e-14 {
+            for i in 0..x.len() {
+                trial[i] = x[i] + step * direction[i];
+            }
+            if let Some(v) = problem.value(&trial, lambda, mu, buffer)
+                && v <= eval.value + 1e-4 * step * slope
+            {
+                accepted = true;
+                break;
+            }
+            step *= 0.5;
+        }
+        if !accepted {
+            return Ok(step_count);
+        }
+        std::mem::swap(x, &mut trial);
+    }
+    Ok(params.max_newton_steps)
+}
+
+/// Initial normals (facing the sensor, by a total-least-squares line through the neighbours of
+/// the same region), their standard deviations and the bounds of `x` (section 3.2).
+fn build_problem<'a>(
+    prior: &'a Prior,
+    input: &ScanInput,
+    members: &[usize],
+    links: &[Topology],
+    params: &Params,
+) -> Problem<'a> {
+    let m = members.len();
+    let points: Vec<[f64; 2]> = members
+        .iter()
+        .map(|&i| {
+            let (s, c) = input.phi[i].sin_cos();
+            [input.rho[i] * c, input.rho[i] * s]
+        })
+        .collect();
+    let mut alpha0 = vec![0.0; m];
+    let mut alpha_sigma = vec![0.0; m];
+    let mut half_width = vec![0.0; m];
+    let min_bound = params.min_normal_bound_deg.to_radians();
+    let cap = 0.49 * std::f64::consts::PI;
+    let w = params.normal_window.max(1);
+    for j in 0..m {
+        // The reach of the region around j, within the window.
+        let mut reach_left = j;
+        while reach_left > 0 && j - reach_left < w && links[reach_left - 1] == Topology::SameRegion
+        {
+            reach_left -= 1;
+        }
+        let mut reach_right = j;
+        while reach_right + 1 < m
+            && reach_right - j < w
+            && links[reach_right] == Topology::SameRegion
+        {
+            reach_right += 1;
+        }
+        let p = points[j];
+        let sigma = input.sigma[members[j]];
+        if reach_left == reach_right {
+            alpha0[j] = (-p[1]).atan2(-p[0]);
+            alpha_sigma[j] = std::f64::consts::FRAC_PI_4;
+            half_width[j] = cap;
+            continue;
+        }
+        // Candidate windows: left, right and centred; the one with the smallest residual
+        // variance wins (robust to an outlier or a corner on one side).
+        let half = w / 2;
+        let candidates = [
+            (reach_left, j),
+            (j, reach_right),
+            (
+                j.saturating_sub(half).max(reach_left),
+                (j + w - half).min(reach_right),
+            ),
+        ];
+        let mut best: Option<(f64, f64, f64, f64)> = None; // (score, theta, spread, extent)
+        for (first, last) in candidates {
+            if last <= first {
+                continue;
+            }
+            let count = (last - first + 1) as f64;
+            let (mut cx, mut cy) = (0.0, 0.0);
+            for q in &points[first..=last] {
+                cx += q[0] / count;
+                cy += q[1] / count;
+            }
+            let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+            for q in &points[first..=last] {
+                let (dx, dy) = (q[0] - cx, q[1] - cy);
+                sxx += dx * dx;
+                sxy += dx * dy;
+                syy += dy * dy;
+            }
+            let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+            let trace = sxx + syy;
+            let det = sxx * syy - sxy * sxy;
+            let smallest = 0.5 * (trace - (trace * trace - 4.0 * det).max(0.0).sqrt());
+            // Residual variance; windows of two points (no residual) rank as one noise level.
+            let score = if count > 2.0 {
+                smallest.max(0.0) / (count - 2.0)
+            } else {
+                sigma * sigma
+            };
+            let (a, b) = (points[first], points[last]);
+            let extent = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
+            if best.is_none_or(|(s, ..)| score < s * 0.999) {
+                best = Some((score, theta, trace.max(1e-12), extent));
+            }
+        }
+        let Some((_, theta, spread, extent)) = best else {
+            continue;
+        };
+        let mut normal = [-theta.sin(), theta.cos()];
+        if normal[0] * p[0] + normal[1] * p[1] > 0.0 {
+            normal = [-normal[0], -normal[1]];
+        }
+        alpha0[j] = normal[1].atan2(normal[0]);
+        alpha_sigma[j] = (sigma / spread.sqrt()).max(1e-3);
+        let curvature = prior.max_curvature.map_or(f64::INFINITY, |k| k * extent);
+        half_width[j] = (params.bound_sigmas * alpha_sigma[j] + curvature)
+            .max(min_bound)
+            .min(cap);
+    }
+    for j in 1..m {
+        let delta = alpha0[j] - alpha0[j - 1];
+        alpha0[j] -= (delta / std::f64::consts::TAU).round() * std::f64::consts::TAU;
+    }
+    let mut lo = Vec::with_capacity(2 * m);
+    let mut hi = Vec::with_capacity(2 * m);
+    for j in 0..m {
+        let i = members[j];
+        let r = params.bound_sigmas * input.sigma[i];
+        lo.push((input.rho[i] - r).max(0.5 * input.rho[i]));
+        hi.push(input.rho[i] + r);
+        lo.push(alpha0[j] - half_width[j]);
+        hi.push(alpha0[j] + half_width[j]);
+    }
+    Problem {
+        prior,
+        phi: members.iter().map(|&i| input.phi[i]).collect(),
+        rho: members.iter().map(|&i| input.rho[i]).collect(),
+        w_rho: members
+            .iter()
+            .map(|&i| 1.0 / (input.sigma[i] * input.sigma[i]))
+            .collect(),
+        alpha0,
+        alpha_sigma,
+        lo,
+        hi,
+        windows: windows_of(prior.order, links, m),
+    }
+}
+
+/// Removes the readings of regions smaller than `min_points`; a link bridging removed
+/// readings becomes same-region (the strictest), or different-surface when its two readings
+/// are too far apart to be on one surface ([`GapTest`]). Returns whether anything was
+/// removed.
+fn remove_lonely_points(
+    members: &mut Vec<usize>,
+    links: &mut Vec<Topology>,
+    min_points: usize,
+    input: &ScanInput,
+    gap: &GapTest,
+) -> bool {
+    let m = members.len();
+    let mut keep = vec![true; m];
+    let mut start = 0;
+    for j in 0..m {
+        if j + 1 == m || links[j] != Topology::SameRegion {
+            if j + 1 - start < min_points {
+                keep[start..=j].iter_mut().for_each(|k| *k = false);
+            }
+            start = j + 1;
+        }
+    }
+    if keep.iter().all(|&k| k) {
+        return false;
+    }
+    let mut new_members = Vec::new();
+    let mut new_links = Vec::new();
+    let mut previous: Option<usize> = None;
+    for j in 0..m {
+        if !keep[j] {
+            continue;
+        }
+        if let Some(p) = previous {
+            new_links.push(if p + 1 == j {
+                links[p]
+            } else if gap.between(input, members[p], members[j]) {
+                Topology::DifferentSurface
+            } else {
+                Topology::SameRegion
+            });
+        }
+        new_members.push(members[j]);
+        previous = Some(j);
+    }
+    *members = new_members;
+    *links = new_links;
+    true
+}
+
+/// The geometric part of the first topology guess (the source's Fig. 6a): two readings
+/// farther apart than a surface seen at [`Params::max_incidence_deg`] would put them (plus
+/// 8 sigma) cannot be on one surface. Beams with no return between them count as at most
+/// one more beam spacing (a surface there would have answered them).
+pub(crate) struct GapTest {
+    stretch: Option<f64>,
+    spacing: f64,
+}
+
+impl GapTest {
+    fn new(input: &ScanInput, params: &Params) -> GapTest {
+        let mut steps: Vec<f64> = input.phi.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+        steps.sort_by(f64::total_cmp);
+        GapTest {
+            stretch: (params.max_incidence_deg < 90.0)
+                .then(|| 1.0 / params.max_incidence_deg.to_radians().cos()),
+            spacing: steps.get(steps.len() / 2).copied().unwrap_or(0.0),
+        }
+    }
+
+    fn between(&self, input: &ScanInput, a: usize, b: usize) -> bool {
+        let Some(stretch) = self.stretch else {
+            return false;
+        };
+        let point = |i: usize| {
+            let (s, c) = input.phi[i].sin_cos();
+            [input.rho[i] * c, input.rho[i] * s]
+        };
+        let (p, q) = (point(a), point(b));
+        let distance = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).sqrt();
+        let beams = (b.abs_diff(a) as f64 * self.spacing).max(self.spacing);
+        let angle = (input.phi[b] - input.phi[a])
+            .abs()
+            .min(beams + self.spacing);
+        let expected = input.rho[a].min(input.rho[b]) * angle * stretch;
+        distance > expected + 8.0 * input.sigma[a].max(input.sigma[b])
+    }
+}
+
+/// Runs the inference (Algorithm 1 around Algorithm 2) of `prior` on one scan.
+pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Solution> {
+    params.validate()?;
+    input.validate()?;
+    let n = input.len();
+    if n < prior.order {
+        return Err(PriorError::InvalidInput(format!(
+            "{n} readings, fewer than the order {} of the prior",
+            prior.order
+        )));
+    }
+    let min_points = params.min_region_points.unwrap_or(2 * prior.order).max(1);
+    let max_outer = params.max_outer_iterations.unwrap_or(3 * n + 10);
+    let mut members: Vec<usize> = (0..n).collect();
+    let gap = GapTest::new(input, params);
+    let mut links: Vec<Topology> = (0..n - 1)
+        .map(|k| {
+            if gap.between(input, k, k + 1) {
+                Topology::DifferentSurface
+            } else {
+                Topology::SameRegion
+            }
+        })
+        .collect();
+    // Readings isolated by the geometric guess are outliers from the start.
+    remove_lonely_points(&mut members, &mut links, min_points, input, &gap);
+    if members.len() < prior.order {
+        return Err(PriorError::InvalidInput(
+            "no run of readings close enough together to be one surface".into(),
+        ));
+    }
+    let mut outer = 0;
+    let mut result;
+    loop {
+        outer += 1;
+        let problem = build_problem(prior, input, &members, &links, params);
+        result = inner_optimization(&problem, params)?;
+        if result.feasible || outer >= max_outer || members.len() < prior.order {
+            break;
+        }
+        let candidate = result
+            .link_penalties
+            .iter()
+            .enumerate()
+            .filter(|&(k, &p)| links[k] != Topology::DifferentSurface && p > 0.0)
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .map(|(k, _)| k);
+        let Some(k) = candidate else { break };
+        links[k] = match links[k] {
+            Topology::SameRegion => Topology::DifferentRegion,
+            _ => Topology::DifferentSurface,
+        };
+        remove_lonely_points(&mut members, &mut links, min_points, input, &gap);
+        if members.len() < prior.order {
+            return Err(PriorError::InvalidInput(
+                "every reading was removed from INMODEL: the prior does not describe this scan"
+                    .into(),
+            ));
+        }
+    }
+    let mut problem = build_problem(prior, input, &members, &links, params);
+    if result.feasible && params.refine_boundaries {
+        let mut best_cost = problem.fit_cost(&result.x);
+        let boundaries: Vec<usize> = (0..links.len())
+            .filter(|&k| links[k] != Topology::SameRegion)
+            .collect();
+        for k0 in boundaries {
+            for direction in [-1_isize, 1] {
+                let mut k = k0;
+                for _ in 0..3 {
+                    let j = k as isize + direction;
+                    if j < 0
+                        || j as usize >= links.len()
+                        || links[j as usize] != Topology::SameRegion
+                    {
+                        break;
+                    }
+                    let j = j as usize;
+                    let mut trial = links.clone();
+                    trial[j] = trial[k];
+                    trial[k] = Topology::SameRegion;
+                    let mut trial_members = members.clone();
+                    let mut trial_links = trial.clone();
+                    if remove_lonely_points(
+                        &mut trial_members,
+                        &mut trial_links,
+                        min_points,
+                        input,
+                        &gap,
+                    ) {
+                        break;
+                    }
+                    let trial_problem = build_problem(prior, input, &members, &trial, params);
+                    outer += 1;
+                    let trial_result = inner_optimization(&trial_problem, params)?;
+                    let cost = trial_problem.fit_cost(&trial_result.x);
+                    if trial_result.feasible && cost < best_cost - 1e-9 {
+                        best_cost = cost;
+                        links = trial;
+                        result = trial_result;
+                        problem = trial_problem;
+                        k = j;
+                    } else {
+                        break;
+                    }
+                }
+            }
+        }
+    }
+    let fit_cost = problem.fit_cost(&result.x);
+    let gamma = (params.inlier_probability / (1.0 - params.inlier_probability)).ln();
+    let mut rho = input.rho.clone();
+    let mut alpha = vec![f64::NAN; n];
+    let mut alpha_sigma = vec![f64::NAN; n];
+    let mut in_model = vec![false; n];
+    for (j, &i) in members.iter().enumerate() {
+        rho[i] = result.x[2 * j];
+        alpha[i] = result.x[2 * j + 1];
+        alpha_sigma[i] = problem.alpha_sigma[j];
+        in_model[i] = true;
+    }
+    Ok(Solution {
+        prior: prior.name.clone(),
+        phi: input.phi.clone(),
+        measured: input.rho.clone(),
+        sigma: input.sigma.clone(),
+        rho,
+        alpha,
+        alpha_sigma,
+        in_model,
+        links: members
+            .windows(2)
+            .zip(&links)
+            .map(|(w, &topology)| Link {
+                from: w[0],
+                to: w[1],
+                topology,
+            })
+            .collect(),
+        feasible: result.feasible,
+        max_violation: result.max_violation,
+        outer_iterations: outer,
+        fit_cost,
+        objective: fit_cost - gamma * members.len() as f64,
+    })
+}

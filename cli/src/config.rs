@@ -7,7 +7,7 @@
 //! seed = 1                # simulation seed
 //!
 //! [estimator]
-//! type = "ekf"            # the one word that selects the estimator
+//! type = "ekf"            # the one word that selects the estimator: ekf, fastslam
 //! association = "nearest-neighbour"   # or "jcbb"; further keys: slam_estimators::EkfParams
 //!
 //! [frontend]
@@ -25,7 +25,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use slam_estimators::EkfParams;
+use slam_estimators::{EkfParams, FastSlamParams};
 use slam_sensors::extract::image::ImageExtractorParams;
 use slam_sensors::extract::{LineExtractorParams, PoleExtractorParams};
 
@@ -93,6 +93,9 @@ impl Default for DataConfig {
 pub enum EstimatorConfig {
     /// The M-space EKF ([`slam_estimators::Ekf`]).
     Ekf(EkfParams),
+    /// FastSLAM 1.0 over the same features ([`slam_estimators::FastSlam`]).
+    #[serde(rename = "fastslam")]
+    FastSlam(FastSlamParams),
 }
 
 impl Default for EstimatorConfig {
@@ -106,6 +109,7 @@ impl EstimatorConfig {
     pub fn name(&self) -> &'static str {
         match self {
             EstimatorConfig::Ekf(_) => "ekf",
+            EstimatorConfig::FastSlam(_) => "fastslam",
         }
     }
 }
@@ -243,7 +247,9 @@ mod tests {
             "t",
         )
         .unwrap();
-        let EstimatorConfig::Ekf(params) = config.estimator;
+        let EstimatorConfig::Ekf(params) = config.estimator else {
+            panic!("not the EKF: {:?}", config.estimator);
+        };
         assert_eq!(params.confirm_after, 2);
         assert_eq!(params.association, slam_estimators::Association::Jcbb);
     }

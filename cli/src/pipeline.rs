@@ -6,7 +6,7 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressStyle};
 use slam_core::nalgebra::{DMatrix, Matrix3, Vector2};
 use slam_core::{Estimator, Pose2};
-use slam_estimators::Ekf;
+use slam_estimators::{Ekf, FastSlam};
 use slam_sensors::{Dataset, Event, TruthKind};
 
 use crate::config::{Config, EstimatorConfig};
@@ -66,6 +66,9 @@ pub fn make_estimator(
     let covariance = DMatrix::from_column_slice(3, 3, covariance.as_slice());
     match config {
         EstimatorConfig::Ekf(params) => Ok(Box::new(Ekf::new(pose, covariance, params.clone())?)),
+        EstimatorConfig::FastSlam(params) => {
+            Ok(Box::new(FastSlam::new(pose, covariance, params.clone())?))
+        }
     }
 }
 

@@ -5,6 +5,8 @@
 //!
 //! - [`Ekf`]: the M-space EKF of the paper's section V, with feature lifecycle, data
 //!   association (nearest neighbour or JCBB), triangulation and shared corners.
+//! - [`FastSlam`]: FastSLAM 1.0 whose particles carry maps of the same features, each with a
+//!   small EKF over its M-space perturbation, sharing features after resampling.
 //!
 //! Errors are [`slam_core::Error`], the error of the [`slam_core::Estimator`] trait.
 
@@ -12,5 +14,8 @@
 
 mod covariance;
 pub mod ekf;
+pub mod fastslam;
+mod lifecycle;
 
 pub use ekf::{Association, Ekf, EkfParams, pose_error};
+pub use fastslam::{FastSlam, FastSlamParams};

@@ -22,7 +22,7 @@
 //!   from its own ChaCha stream derived from the seed, the step and its index, so the result
 //!   does not depend on the number of threads.
 
-mod pvec;
+pub(crate) mod pvec;
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, OnceLock};
@@ -241,7 +241,7 @@ pub struct FastSlam<P: RobotPose> {
 }
 
 /// A fresh random stream for `(seed, draw, index)`: independent of the thread that uses it.
-fn stream(seed: u64, draw: u64, index: u64) -> ChaCha8Rng {
+pub(crate) fn stream(seed: u64, draw: u64, index: u64) -> ChaCha8Rng {
     let mut z = seed ^ draw.wrapping_mul(0x9E37_79B9_7F4A_7C15);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
@@ -298,6 +298,91 @@ pub(crate) fn normalized(log_weights: &[f64]) -> Vec<f64> {
         return vec![1.0 / n; log_weights.len()];
     }
     raw.into_iter().map(|w| w / total).collect()
+}
+
+/// Weighted mean of particle poses (angles averaged as wrapped differences from the particle
+/// `best`) and their weighted covariance.
+pub(crate) fn weighted_mean<P: RobotPose>(
+    poses: &[P],
+    log_weights: &[f64],
+    best: usize,
+) -> (P, DMatrix<f64>) {
+    let weights = normalized(log_weights);
+    let reference = poses[best.min(poses.len() - 1)];
+    let differences: Vec<DVector<f64>> = poses
+        .iter()
+        .map(|p| DVector::from_vec(pose_difference(p, &reference)))
+        .collect();
+    let mut mean = DVector::zeros(P::DIM);
+    for (d, w) in differences.iter().zip(&weights) {
+        mean += d * *w;
+    }
+    let mut cov = DMatrix::zeros(P::DIM, P::DIM);
+    for (d, w) in differences.iter().zip(&weights) {
+        let e = d - &mean;
+        cov += &e * e.transpose() * *w;
+    }
+    let mut parameters = reference.parameters();
+    for (p, d) in parameters.iter_mut().zip(mean.iter()) {
+        *p += d;
+    }
+    let pose = P::from_parameters(&parameters).unwrap_or(reference);
+    (pose, cov)
+}
+
+/// Every pose moved by its own draw of the increment from `N(x_d, C_d)` (the motion model as
+/// the proposal), in parallel; the draw of pose `i` comes from `stream(seed, draw, i)`.
+pub(crate) fn sample_motion<P: RobotPose>(
+    poses: &[P],
+    motion: &dyn MotionModel<P>,
+    seed: u64,
+    draw: u64,
+) -> Result<Vec<P>> {
+    let Some(first) = poses.first() else {
+        return Ok(Vec::new());
+    };
+    let prediction = motion.predict(first)?;
+    slam_core::ensure_finite(prediction.cov_control.as_slice(), "motion noise")?;
+    let control = motion.control();
+    let root = matrix_sqrt(&prediction.cov_control);
+    if root.nrows() != control.len() {
+        return Err(Error::DimensionMismatch {
+            what: "motion noise".into(),
+            expected: control.len(),
+            got: root.nrows(),
+        });
+    }
+    poses
+        .par_iter()
+        .enumerate()
+        .map(|(index, pose)| {
+            let mut rng = stream(seed, draw, index as u64);
+            let z = DVector::from_fn(control.len(), |_, _| StandardNormal.sample(&mut rng));
+            let sampled = &control + &root * z;
+            motion.apply_control(pose, &sampled)
+        })
+        .collect()
+}
+
+/// Systematic resampling of `log_weights` when the effective sample size is below
+/// `threshold * n`: the chosen parent of each new particle, or `None` (no resampling).
+pub(crate) fn resample_indices(
+    log_weights: &[f64],
+    threshold: f64,
+    seed: u64,
+    draw: u64,
+) -> Option<Vec<usize>> {
+    let n = log_weights.len();
+    let weights = normalized(log_weights);
+    let ess = 1.0 / weights.iter().map(|w| w * w).sum::<f64>();
+    if ess >= threshold * n as f64 {
+        return None;
+    }
+    let mut rng = stream(seed, draw, u64::MAX);
+    let u: f64 = Uniform::new(0.0, 1.0 / n as f64)
+        .map(|d| d.sample(&mut rng))
+        .unwrap_or(0.0);
+    Some(systematic_resample(&weights, u))
 }
 
 /// `a - b` in pose parameters with angle differences wrapped.
@@ -396,47 +481,23 @@ impl<P: RobotPose> FastSlam<P> {
         self.particles.iter().map(|p| p.log_weight).collect()
     }
 
-    /// Weighted mean of the particle poses (angles averaged as wrapped differences from the
-    /// best particle) and their weighted covariance.
+    /// Weighted mean of the particle poses and their weighted covariance.
     fn weighted_mean(&self) -> (P, DMatrix<f64>) {
-        let weights = normalized(&self.log_weights());
-        let reference = self.particles[self.best.min(self.particles.len() - 1)].pose;
-        let differences: Vec<Vec<f64>> = self
-            .particles
-            .iter()
-            .map(|p| pose_difference(&p.pose, &reference))
-            .collect();
-        let mut mean = DVector::zeros(P::DIM);
-        for (d, w) in differences.iter().zip(&weights) {
-            mean += DVector::from_column_slice(d) * *w;
-        }
-        let mut cov = DMatrix::zeros(P::DIM, P::DIM);
-        for (d, w) in differences.iter().zip(&weights) {
-            let e = DVector::from_column_slice(d) - &mean;
-            cov += &e * e.transpose() * *w;
-        }
-        let mut parameters = reference.parameters();
-        for (p, d) in parameters.iter_mut().zip(mean.iter()) {
-            *p += d;
-        }
-        let pose = P::from_parameters(&parameters).unwrap_or(reference);
-        (pose, cov)
+        let poses: Vec<P> = self.particles.iter().map(|p| p.pose).collect();
+        weighted_mean(&poses, &self.log_weights(), self.best)
     }
 
     /// Resamples (systematic) when the effective sample size is below the threshold.
     fn maybe_resample(&mut self) {
-        let n = self.particles.len();
-        let weights = normalized(&self.log_weights());
-        let ess = 1.0 / weights.iter().map(|w| w * w).sum::<f64>();
-        if ess >= self.params.resample_threshold * n as f64 {
+        let Some(chosen) = resample_indices(
+            &self.log_weights(),
+            self.params.resample_threshold,
+            self.params.seed,
+            self.draws,
+        ) else {
             return;
-        }
-        let mut rng = stream(self.params.seed, self.draws, u64::MAX);
+        };
         self.draws += 1;
-        let u: f64 = Uniform::new(0.0, 1.0 / n as f64)
-            .map(|d| d.sample(&mut rng))
-            .unwrap_or(0.0);
-        let chosen = systematic_resample(&weights, u);
         let best = self.best;
         // Copies share the parent's map: O(1) per particle.
         let resampled: Vec<Particle<P>> = chosen
@@ -479,7 +540,7 @@ impl<P: RobotPose> FastSlam<P> {
 
 /// `A` with `A A^T = m` for a symmetric positive semi-definite `m` (negative eigenvalues
 /// clipped).
-fn matrix_sqrt(m: &DMatrix<f64>) -> DMatrix<f64> {
+pub(crate) fn matrix_sqrt(m: &DMatrix<f64>) -> DMatrix<f64> {
     let symmetric = 0.5 * (m + m.transpose());
     let eigen = symmetric.symmetric_eigen();
     let roots = eigen.eigenvalues.map(|v| v.max(0.0).sqrt());
@@ -929,32 +990,12 @@ impl<P: RobotPose> Estimator<P> for FastSlam<P> {
     /// Every particle draws its increment from `N(x_d, C_d)` and moves by it (FastSLAM 1.0's
     /// proposal: the motion model).
     fn predict(&mut self, motion: &dyn MotionModel<P>) -> Result<()> {
-        let prediction = motion.predict(&self.particles[0].pose)?;
-        slam_core::ensure_finite(prediction.cov_control.as_slice(), "motion noise")?;
-        let control = motion.control();
-        let root = matrix_sqrt(&prediction.cov_control);
-        if root.nrows() != control.len() {
-            return Err(Error::DimensionMismatch {
-                what: "motion noise".into(),
-                expected: control.len(),
-                got: root.nrows(),
-            });
-        }
         let (seed, draw) = (self.params.seed, self.draws);
         self.draws += 1;
-        let poses: Vec<Result<P>> = self
-            .particles
-            .par_iter()
-            .enumerate()
-            .map(|(index, particle)| {
-                let mut rng = stream(seed, draw, index as u64);
-                let z = DVector::from_fn(control.len(), |_, _| StandardNormal.sample(&mut rng));
-                let sampled = &control + &root * z;
-                motion.apply_control(&particle.pose, &sampled)
-            })
-            .collect();
+        let poses: Vec<P> = self.particles.iter().map(|p| p.pose).collect();
+        let poses = sample_motion(&poses, motion, seed, draw)?;
         for (particle, pose) in self.particles.iter_mut().zip(poses) {
-            particle.pose = pose?;
+            particle.pose = pose;
         }
         self.mean = self.weighted_mean();
         Ok(())

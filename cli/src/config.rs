@@ -7,7 +7,7 @@
 //! seed = 1                # simulation seed
 //!
 //! [estimator]
-//! type = "ekf"            # the one word that selects the estimator: ekf, fastslam
+//! type = "ekf"            # the one word that selects the estimator: ekf, fastslam, ipslam
 //! association = "nearest-neighbour"   # or "jcbb"; further keys: slam_estimators::EkfParams
 //!
 //! [frontend]
@@ -25,7 +25,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use slam_estimators::{EkfParams, FastSlamParams};
+use slam_estimators::{EkfParams, FastSlamParams, IpslamParams};
 use slam_sensors::extract::image::ImageExtractorParams;
 use slam_sensors::extract::{LineExtractorParams, PoleExtractorParams};
 
@@ -62,6 +62,9 @@ pub struct DataConfig {
     pub victoria_park: crate::data::VictoriaParkConfig,
     /// MR.CLAM reader noise settings.
     pub mrclam: crate::data::MrclamConfig,
+    /// Replace the data's motion by odometry built from its reference poses with seeded
+    /// noise (for logs without raw odometry, such as the Radish corrected logs).
+    pub odometry_from_poses: Option<crate::data::PoseOdometryConfig>,
 }
 
 impl DataConfig {
@@ -83,6 +86,7 @@ impl Default for DataConfig {
             max_events: 0,
             victoria_park: Default::default(),
             mrclam: Default::default(),
+            odometry_from_poses: None,
         }
     }
 }
@@ -96,6 +100,9 @@ pub enum EstimatorConfig {
     /// FastSLAM 1.0 over the same features ([`slam_estimators::FastSlam`]).
     #[serde(rename = "fastslam")]
     FastSlam(FastSlamParams),
+    /// IPSLAM's particles with PPCA line maps from raw scans ([`slam_estimators::Ipslam`]).
+    #[serde(rename = "ipslam")]
+    Ipslam(IpslamParams),
 }
 
 impl Default for EstimatorConfig {
@@ -110,6 +117,7 @@ impl EstimatorConfig {
         match self {
             EstimatorConfig::Ekf(_) => "ekf",
             EstimatorConfig::FastSlam(_) => "fastslam",
+            EstimatorConfig::Ipslam(_) => "ipslam",
         }
     }
 }

@@ -100,6 +100,10 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
         truth: truth_map,
         ..
     } = loaded;
+    let dataset = match &config.data.odometry_from_poses {
+        Some(noise) => crate::data::odometry_from_poses(dataset, noise, config.data.seed)?,
+        None => dataset,
+    };
     let name = dataset.name.clone();
     let landmarks = dataset.landmarks.clone();
     let bar = progress_bar(dataset.events.len(), quiet);

@@ -350,6 +350,43 @@ mod tests {
     }
 
     #[test]
+    fn particle_filters_run_from_the_same_config_with_one_word_changed() {
+        let dir = temp_dir("particles");
+        let world = short_world(&dir);
+        for (estimator, extra) in [("fastslam", "particles = 6"), ("ipslam", "particles = 6")] {
+            let mut trajectories = Vec::new();
+            for run in 0..2 {
+                let out = dir.join(format!("{estimator}-{run}"));
+                let text = format!(
+                    "[data]\nspec = \"world:{}\"\n[estimator]\ntype = \"{estimator}\"\n{extra}\n\
+                     [output]\nplots = false\ndir = \"{}\"\n",
+                    world.display(),
+                    out.display()
+                );
+                let config = Config::from_toml(&text, "test").unwrap();
+                run_config(&config, true).unwrap();
+                let metrics: serde_json::Value = serde_json::from_str(
+                    &std::fs::read_to_string(out.join("metrics.json")).unwrap(),
+                )
+                .unwrap();
+                assert_eq!(metrics["estimator"], estimator);
+                let ate = metrics["ate_rmse_m"].as_f64().unwrap();
+                assert!(ate < 1.0, "{estimator}: ATE {ate}");
+                assert!(
+                    metrics["map_error_m"].as_f64().is_some(),
+                    "{estimator}: no map error"
+                );
+                trajectories.push(std::fs::read_to_string(out.join("trajectory.tum")).unwrap());
+            }
+            assert_eq!(
+                trajectories[0], trajectories[1],
+                "{estimator}: same seed, same run"
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
     fn bad_configs_are_clear_errors() {
         let dir = temp_dir("bad");
         let path = dir.join("bad.toml");

@@ -83,6 +83,10 @@ pub struct IpslamParams {
     pub min_travel: f64,
     /// ... or turned this much, degrees.
     pub min_turn_deg: f64,
+    /// The log-likelihood of a scan is multiplied by this (1: the paper's eq. 18). Scan points
+    /// are not independent given the map; values below 1 temper the weights, as in grid-based
+    /// particle filters, so that resampling keeps more of the particles.
+    pub likelihood_scale: f64,
 }
 
 impl Default for IpslamParams {
@@ -102,6 +106,7 @@ impl Default for IpslamParams {
             max_range: 20.0,
             min_travel: 0.3,
             min_turn_deg: 10.0,
+            likelihood_scale: 1.0,
         }
     }
 }
@@ -152,6 +157,7 @@ impl IpslamParams {
                 self.min_turn_deg.is_finite() && self.min_turn_deg >= 0.0,
                 "min_turn_deg >= 0",
             ),
+            (positive(self.likelihood_scale), "likelihood_scale > 0"),
         ];
         match checks.iter().find(|(ok, _)| !ok) {
             Some((_, what)) => Err(Error::InvalidArgument(format!("IPSLAM parameters: {what}"))),
@@ -370,8 +376,7 @@ fn process<P: RobotPose>(
         let (new, members) = &placed[j];
         let merged = ppca::merge(&old, new, members);
         // A merge that makes a thick cluster (two walls at a corner) is refused.
-        let limit = params.new_cluster_max_sigma.max(old.sigma2.sqrt());
-        if merged.sigma2.sqrt() > limit {
+        if merged.sigma2.sqrt() > params.new_cluster_max_sigma {
             continue;
         }
         old_used[i] = true;
@@ -441,7 +446,7 @@ impl<P: RobotPose> Estimator<P> for Ipslam<P> {
             .map(|particle| process(particle, params, robot_from_sensor, &scan_clusters, &points))
             .collect();
         for (particle, step) in self.particles.iter_mut().zip(&steps) {
-            particle.log_weight += step.log_likelihood;
+            particle.log_weight += self.params.likelihood_scale * step.log_likelihood;
         }
         let max = self
             .particles

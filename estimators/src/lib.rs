@@ -21,5 +21,5 @@ pub mod ipslam;
 mod lifecycle;
 
 pub use ekf::{Association, Ekf, EkfParams, pose_error};
-pub use fastslam::{FastSlam, FastSlamParams};
+pub use fastslam::{FastSlam, FastSlamParams, Proposal};
 pub use ipslam::{ClusterFeatureFactory, Ipslam, IpslamParams};

@@ -18,6 +18,8 @@
 //! - **Shared maps**: a particle's map is a persistent vector of features
 //!   (`pvec::PVec`, a 16-ary trie of `Arc` nodes): resampling copies roots only (O(N)),
 //!   and a particle copies a feature (and its O(log M) path) only when it changes it.
+//! - **Proposal**: FastSLAM 1.0 (the motion model) by default; FastSLAM 2.0's improved
+//!   proposal ([`Proposal::Improved`]) draws the pose conditioned on the step's observations.
 //! - **Parallel and reproducible**: particles are processed with rayon; every particle draws
 //!   from its own ChaCha stream derived from the seed, the step and its index, so the result
 //!   does not depend on the number of threads.
@@ -47,6 +49,21 @@ use pvec::PVec;
 /// Largest `|B (x_new - x_old)|` accepted for a change outside the M-space.
 const OUTSIDE_MSPACE_TOLERANCE: f64 = 1e-6;
 
+/// How particles draw their poses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Proposal {
+    /// FastSLAM 1.0: from the motion model alone.
+    #[default]
+    Motion,
+    /// FastSLAM 2.0 (Montemerlo et al. 2003): from the motion model conditioned on the
+    /// step's observations of confirmed features, `N(mu, Sigma)` with
+    /// `Sigma^-1 = C_motion^-1 + sum H_r^T Q^-1 H_r` and `Q = H_f P_f H_f^T + C_eta`;
+    /// the weight is the observations' likelihood under the predicted pose,
+    /// `N(eta; 0, H_r C_motion H_r^T + Q)`.
+    Improved,
+}
+
 /// Settings of [`FastSlam`]; `Default` gives the values used on the built-in world.
 ///
 /// ```
@@ -59,6 +76,8 @@ const OUTSIDE_MSPACE_TOLERANCE: f64 = 1e-6;
 pub struct FastSlamParams {
     /// Number of particles.
     pub particles: usize,
+    /// FastSLAM 1.0 (`"motion"`) or 2.0 (`"improved"`).
+    pub proposal: Proposal,
     /// Seed of the particles' random streams.
     pub seed: u64,
     /// Resample when the effective sample size falls below this fraction of the particles.
@@ -86,6 +105,7 @@ impl Default for FastSlamParams {
     fn default() -> Self {
         FastSlamParams {
             particles: 100,
+            proposal: Proposal::Motion,
             seed: 1,
             resample_threshold: 0.5,
             gate_probability: 0.99,
@@ -171,6 +191,9 @@ struct Particle<P> {
     ids: Arc<BTreeMap<u64, usize>>,
     /// Slots of tentative features (few), for pruning.
     tentative: Vec<usize>,
+    /// FastSLAM 2.0: the pose covariance accumulated by predictions since the pose was last
+    /// drawn (the pose is their mean meanwhile).
+    pending: Option<DMatrix<f64>>,
 }
 
 /// What a particle decided for one observation.
@@ -419,6 +442,7 @@ impl<P: RobotPose> FastSlam<P> {
                 map: PVec::default(),
                 ids: Arc::new(BTreeMap::new()),
                 tentative: Vec::new(),
+                pending: None,
             });
         }
         let mut gates = BTreeMap::new();
@@ -547,15 +571,109 @@ pub(crate) fn matrix_sqrt(m: &DMatrix<f64>) -> DMatrix<f64> {
     &eigen.eigenvectors * DMatrix::from_diagonal(&roots)
 }
 
+/// One observation in FastSLAM 2.0's proposal: its index, `H_r`, `eta` and `Q`.
+type ProposalRow = (usize, DMatrix<f64>, DVector<f64>, DMatrix<f64>);
+
 /// The per-particle work of one update step.
 struct ParticleUpdate<'a, 'c, P: RobotPose> {
     context: &'c StepContext<'a>,
     particle: &'c mut Particle<P>,
     report: UpdateReport,
     log_likelihood: f64,
+    /// Observations whose likelihood the proposal already counted.
+    weighted: Vec<bool>,
+    /// The particle's random stream for this step (FastSLAM 2.0).
+    rng: ChaCha8Rng,
 }
 
 impl<P: RobotPose> ParticleUpdate<'_, '_, P> {
+    /// FastSLAM 2.0: draws the pose from the motion prior conditioned on the observations of
+    /// confirmed features paired in `decisions`, and counts their joint likelihood under the
+    /// predicted pose. Without such observations the pose is drawn from the prior alone.
+    fn propose(&mut self, observations: &[Observation], decisions: &[Decision]) -> Result<()> {
+        let Some(prior) = self.particle.pending.take() else {
+            return Ok(());
+        };
+        let d = P::DIM;
+        let pose = self.particle.pose;
+        // (observation, H_r, eta, Q) of each pairing with a confirmed feature.
+        let mut rows: Vec<ProposalRow> = Vec::new();
+        for (index, decision) in decisions.iter().enumerate() {
+            let Decision::Pair(slot) = decision else {
+                continue;
+            };
+            let Some(landmark) = self.particle.map.get(*slot) else {
+                continue;
+            };
+            let n = landmark.feature.mspace_dim();
+            if n == 0 || landmark.cov.shape() != (n, n) {
+                continue;
+            }
+            let observation = &observations[index];
+            let Ok(lin) = linearize(
+                observation.measurement.as_ref(),
+                landmark.feature.as_ref(),
+                &pose,
+                &observation.robot_from_sensor,
+            ) else {
+                continue;
+            };
+            let q = &lin.d_eta_d_own * &landmark.cov * lin.d_eta_d_own.transpose() + &lin.cov_eta;
+            rows.push((index, lin.d_eta_d_robot, lin.eta, q));
+        }
+        let root;
+        let mut mean = DVector::zeros(d);
+        if rows.is_empty() {
+            root = matrix_sqrt(&prior);
+        } else {
+            // Information form; the prior's information is regularized for a still robot.
+            let regularized = &prior + DMatrix::identity(d, d) * 1e-12;
+            let Some(mut information) = regularized.try_inverse() else {
+                return Ok(());
+            };
+            let mut gradient = DVector::zeros(d);
+            let m: usize = rows.iter().map(|r| r.2.len()).sum();
+            let mut h = DMatrix::zeros(m, d);
+            let mut eta = DVector::zeros(m);
+            let mut q_all = DMatrix::zeros(m, m);
+            let mut at = 0;
+            for (_, h_r, e, q) in &rows {
+                let Some(q_inv) = q.clone().try_inverse() else {
+                    return Ok(());
+                };
+                information += h_r.transpose() * &q_inv * h_r;
+                gradient += h_r.transpose() * &q_inv * e;
+                let k = e.len();
+                h.view_mut((at, 0), (k, d)).copy_from(h_r);
+                eta.rows_mut(at, k).copy_from(e);
+                q_all.view_mut((at, at), (k, k)).copy_from(q);
+                at += k;
+            }
+            let Some(sigma) = information.try_inverse() else {
+                return Ok(());
+            };
+            mean = -(&sigma * gradient);
+            root = matrix_sqrt(&sigma);
+            let s = &h * &prior * h.transpose() + q_all;
+            if let Some((log_likelihood, _)) = log_normal(&eta, &s) {
+                self.log_likelihood += log_likelihood;
+                for (index, ..) in &rows {
+                    self.weighted[*index] = true;
+                }
+            }
+        }
+        let z = DVector::from_fn(d, |_, _| StandardNormal.sample(&mut self.rng));
+        let delta = mean + root * z;
+        let mut parameters = pose.parameters();
+        for (p, x) in parameters.iter_mut().zip(delta.iter()) {
+            *p += x;
+        }
+        if let Ok(drawn) = P::from_parameters(&parameters) {
+            self.particle.pose = drawn;
+        }
+        Ok(())
+    }
+
     /// Decides every observation against the particle's map before changing it.
     fn associate(&self, observations: &[Observation]) -> Result<Vec<Decision>> {
         observations
@@ -625,6 +743,9 @@ impl<P: RobotPose> ParticleUpdate<'_, '_, P> {
 
     fn run(&mut self, observations: &[Observation]) -> Result<()> {
         let decisions = self.associate(observations)?;
+        if self.context.params.proposal == Proposal::Improved {
+            self.propose(observations, &decisions)?;
+        }
         for (index, decision) in decisions.into_iter().enumerate() {
             let observation = &observations[index];
             match decision {
@@ -655,7 +776,9 @@ impl<P: RobotPose> ParticleUpdate<'_, '_, P> {
             return Ok(());
         };
         let confirmed = landmark.feature.mspace_dim() > 0;
-        self.log_likelihood += log_likelihood;
+        if !self.weighted.get(index).copied().unwrap_or(false) {
+            self.log_likelihood += log_likelihood;
+        }
         self.report.associated += 1;
         if confirmed {
             self.report.nis.push((d2, dof));
@@ -990,6 +1113,29 @@ impl<P: RobotPose> Estimator<P> for FastSlam<P> {
     /// Every particle draws its increment from `N(x_d, C_d)` and moves by it (FastSLAM 1.0's
     /// proposal: the motion model).
     fn predict(&mut self, motion: &dyn MotionModel<P>) -> Result<()> {
+        if self.params.proposal == Proposal::Improved {
+            // The mean moves; the covariance waits for the next observations (eqs. 26).
+            let predicted: Vec<Result<(P, DMatrix<f64>)>> = self
+                .particles
+                .par_iter()
+                .map(|particle| {
+                    let prediction = motion.predict(&particle.pose)?;
+                    let prior = particle
+                        .pending
+                        .clone()
+                        .unwrap_or_else(|| DMatrix::zeros(P::DIM, P::DIM));
+                    Ok((prediction.pose, prediction.propagate_covariance(&prior)?))
+                })
+                .collect();
+            for (particle, result) in self.particles.iter_mut().zip(predicted) {
+                let (pose, cov) = result?;
+                slam_core::ensure_finite(cov.as_slice(), "motion noise")?;
+                particle.pose = pose;
+                particle.pending = Some(cov);
+            }
+            self.mean = self.weighted_mean();
+            return Ok(());
+        }
         let (seed, draw) = (self.params.seed, self.draws);
         self.draws += 1;
         let poses: Vec<P> = self.particles.iter().map(|p| p.pose).collect();
@@ -1016,15 +1162,20 @@ impl<P: RobotPose> Estimator<P> for FastSlam<P> {
                 })
                 .collect(),
         };
+        let (seed, draw) = (self.params.seed, self.draws);
+        self.draws += 1;
         let results: Vec<Result<(f64, UpdateReport)>> = self
             .particles
             .par_iter_mut()
-            .map(|particle| {
+            .enumerate()
+            .map(|(index, particle)| {
                 let mut work = ParticleUpdate {
                     context: &context,
                     particle,
                     report: UpdateReport::default(),
                     log_likelihood: 0.0,
+                    weighted: vec![false; observations.len()],
+                    rng: stream(seed, draw, index as u64),
                 };
                 work.run(observations)?;
                 Ok((work.log_likelihood, work.report))

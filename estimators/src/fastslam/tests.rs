@@ -122,6 +122,27 @@ fn known_ids_map_every_landmark_close_to_the_truth() {
 }
 
 #[test]
+fn the_improved_proposal_tracks_with_few_particles() {
+    let world = world(60, false, 4);
+    let params = FastSlamParams {
+        proposal: Proposal::Improved,
+        ..small(5)
+    };
+    let (filter, worst) = run(&world, params);
+    assert!(worst < 0.2, "largest position error {worst}");
+    let confirmed = filter
+        .map()
+        .iter()
+        .filter(|(_, f)| f.mspace_dim() > 0)
+        .count();
+    let seen = world.seen.len();
+    assert!(
+        (seen - 1..=seen + 1).contains(&confirmed),
+        "{confirmed} features for {seen} landmarks"
+    );
+}
+
+#[test]
 fn unknown_ids_are_associated_per_particle() {
     let world = world(60, false, 4);
     let (filter, worst) = run(&world, small(20));
@@ -148,13 +169,18 @@ fn results_do_not_depend_on_the_thread_count() {
             .unwrap();
         pool.install(|| {
             let (filter, _) = run(&world, small(16));
+            let improved = FastSlamParams {
+                proposal: Proposal::Improved,
+                ..small(8)
+            };
+            let (improved, _) = run(&world, improved);
             let poses: Vec<(Pose2, f64)> = filter.particle_poses();
             let map: Vec<Vec<f64>> = filter
                 .map()
                 .iter()
                 .map(|(_, f)| f.coordinates().to_vector().as_slice().to_vec())
                 .collect();
-            (poses, map, filter.resamplings())
+            (poses, map, filter.resamplings(), improved.particle_poses())
         })
     };
     let one = outcome(1);

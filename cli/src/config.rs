@@ -7,7 +7,7 @@
 //! seed = 1                # simulation seed
 //!
 //! [estimator]
-//! type = "ekf"            # the one word that selects the estimator
+//! type = "ekf"            # the one word that selects the estimator: ekf, fastslam, ipslam
 //! association = "nearest-neighbour"   # or "jcbb"; further keys: slam_estimators::EkfParams
 //!                         # type = "em-polygon": polygonal map of the registered scans (polygon.rs)
 //!
@@ -26,7 +26,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use slam_estimators::EkfParams;
+use slam_estimators::{EkfParams, FastSlamParams, IpslamParams};
 use slam_sensors::extract::image::ImageExtractorParams;
 use slam_sensors::extract::{LineExtractorParams, PoleExtractorParams};
 
@@ -63,6 +63,9 @@ pub struct DataConfig {
     pub victoria_park: crate::data::VictoriaParkConfig,
     /// MR.CLAM reader noise settings.
     pub mrclam: crate::data::MrclamConfig,
+    /// Replace the data's motion by odometry built from its reference poses with seeded
+    /// noise (for logs without raw odometry, such as the Radish corrected logs).
+    pub odometry_from_poses: Option<crate::data::PoseOdometryConfig>,
 }
 
 impl DataConfig {
@@ -84,6 +87,7 @@ impl Default for DataConfig {
             max_events: 0,
             victoria_park: Default::default(),
             mrclam: Default::default(),
+            odometry_from_poses: None,
         }
     }
 }
@@ -96,6 +100,12 @@ pub enum EstimatorConfig {
     Ekf(EkfParams),
     /// EM polygonal approximation of the registered scans (post-processing, `cli/src/polygon.rs`).
     EmPolygon(crate::polygon::EmPolygonConfig),
+    /// FastSLAM 1.0 over the same features ([`slam_estimators::FastSlam`]).
+    #[serde(rename = "fastslam")]
+    FastSlam(FastSlamParams),
+    /// IPSLAM's particles with PPCA line maps from raw scans ([`slam_estimators::Ipslam`]).
+    #[serde(rename = "ipslam")]
+    Ipslam(IpslamParams),
 }
 
 impl Default for EstimatorConfig {
@@ -110,6 +120,8 @@ impl EstimatorConfig {
         match self {
             EstimatorConfig::Ekf(_) => "ekf",
             EstimatorConfig::EmPolygon(_) => "em-polygon",
+            EstimatorConfig::FastSlam(_) => "fastslam",
+            EstimatorConfig::Ipslam(_) => "ipslam",
         }
     }
 }
@@ -248,7 +260,7 @@ mod tests {
         )
         .unwrap();
         let EstimatorConfig::Ekf(params) = config.estimator else {
-            panic!("not the EKF: {:?}", config.estimator)
+            panic!("not the EKF: {:?}", config.estimator);
         };
         assert_eq!(params.confirm_after, 2);
         assert_eq!(params.association, slam_estimators::Association::Jcbb);

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 use std::str::FromStr;
 
+use serde::{Deserialize, Serialize};
 use slam_core::Pose2;
 use slam_sensors::Dataset;
 use slam_sensors::data::{
@@ -141,6 +142,133 @@ impl Default for MrclamConfig {
             sigma_bearing: o.sigma_bearing,
         }
     }
+}
+
+/// Odometry built from a log's reference poses with seeded noise (`[data.odometry_from_poses]`),
+/// for logs whose motion is not raw odometry (the Radish corrected logs): before each scan, the
+/// increment from the previous scan's reference pose to this one's, with Gaussian noise of
+/// deviation `translation_per_metre * d + floor_translation` on x and y and
+/// `rotation_per_radian * |a| + rotation_per_metre * d + floor_rotation` on the heading (`d` the
+/// distance, `a` the turn), drawn from a stream of the `[data] seed`. The data's own motion
+/// events are dropped; the reference poses stay as the reference for the ATE.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PoseOdometryConfig {
+    /// Translation deviation per metre travelled.
+    pub translation_per_metre: f64,
+    /// Heading deviation per radian turned.
+    pub rotation_per_radian: f64,
+    /// Heading deviation per metre travelled, rad/m.
+    pub rotation_per_metre: f64,
+    /// Smallest translation deviation, m.
+    pub floor_translation: f64,
+    /// Smallest heading deviation, rad.
+    pub floor_rotation: f64,
+}
+
+impl Default for PoseOdometryConfig {
+    fn default() -> Self {
+        PoseOdometryConfig {
+            translation_per_metre: 0.05,
+            rotation_per_radian: 0.05,
+            rotation_per_metre: 0.02,
+            floor_translation: 0.005,
+            floor_rotation: 0.002,
+        }
+    }
+}
+
+/// Replaces the motion of `dataset` by odometry from its reference poses (see
+/// [`PoseOdometryConfig`]); each scan's pose is the ground-truth event at the scan's time.
+pub fn odometry_from_poses(
+    dataset: Dataset,
+    noise: &PoseOdometryConfig,
+    seed: u64,
+) -> Result<Dataset> {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    use slam_sensors::{Event, TimedEvent};
+    let values = [
+        noise.translation_per_metre,
+        noise.rotation_per_radian,
+        noise.rotation_per_metre,
+        noise.floor_translation,
+        noise.floor_rotation,
+    ];
+    if values.iter().any(|v| !v.is_finite() || *v < 0.0) || values[3] <= 0.0 || values[4] <= 0.0 {
+        return Err(CliError::Usage(
+            "[data.odometry_from_poses]: deviations must be finite and >= 0, floors > 0".into(),
+        ));
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(0x0D0_0E7);
+    let Dataset {
+        name,
+        events,
+        clock,
+        landmarks,
+        skipped,
+    } = dataset;
+    let mut out = Vec::with_capacity(events.len());
+    let mut previous: Option<Pose2> = None;
+    let mut iter = events.into_iter().peekable();
+    let mut motions = 0usize;
+    while let Some(timed) = iter.next() {
+        match &timed.event {
+            Event::Motion(_) => continue,
+            Event::Scan { .. } => {
+                let pose = iter.peek().and_then(|next| match &next.event {
+                    Event::GroundTruth { pose, .. } if next.time == timed.time => Some(*pose),
+                    _ => None,
+                });
+                if let Some(pose) = pose {
+                    if let Some(before) = previous {
+                        let relative = before.inverse().compose(&pose);
+                        let d = relative.translation().norm();
+                        let a = relative.theta.abs();
+                        let sigma_t = noise.translation_per_metre * d + noise.floor_translation;
+                        let sigma_r = noise.rotation_per_radian * a
+                            + noise.rotation_per_metre * d
+                            + noise.floor_rotation;
+                        let mut draw = || -> f64 { StandardNormal.sample(&mut rng) };
+                        let noisy = Pose2::new(
+                            relative.x + sigma_t * draw(),
+                            relative.y + sigma_t * draw(),
+                            relative.theta + sigma_r * draw(),
+                        );
+                        let cov = slam_core::nalgebra::Matrix3::from_diagonal(
+                            &slam_core::nalgebra::Vector3::new(
+                                sigma_t * sigma_t,
+                                sigma_t * sigma_t,
+                                sigma_r * sigma_r,
+                            ),
+                        );
+                        let increment = slam_sensors::odometry::PoseIncrement::new(noisy, cov)?;
+                        out.push(TimedEvent {
+                            time: timed.time,
+                            event: Event::Motion(Box::new(increment)),
+                        });
+                        motions += 1;
+                    }
+                    previous = Some(pose);
+                }
+            }
+            _ => {}
+        }
+        out.push(timed);
+    }
+    if motions == 0 {
+        return Err(CliError::Usage(format!(
+            "[data.odometry_from_poses]: {name} has no scan with a reference pose"
+        )));
+    }
+    Ok(Dataset {
+        name,
+        events: out,
+        clock,
+        landmarks,
+        skipped,
+    })
 }
 
 /// Settings of the dataset readers.

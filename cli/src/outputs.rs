@@ -10,7 +10,7 @@ use slam_core::{
     CoordBlock, Estimator, Feature, FeatureId, Pose2, RowOwner, chi2_quantile, downcast_feature,
 };
 use slam_examples::EndpointWall;
-use slam_features::{HLine, Point, Pole, Wall};
+use slam_features::{HLine, Point, Pole, PpcaLine, Wall};
 use slam_sensors::TruthKind;
 use slam_sensors::data::{StampedPose, write_atomically, write_tum};
 use slam_sensors::events::KnownLandmark;
@@ -294,6 +294,8 @@ pub fn map_error_against_truth(
             segment_error(place(wall.start()), place(wall.end()), &truth.walls)
         } else if let Some(wall) = downcast_feature::<EndpointWall>(feature) {
             segment_error(place(wall.start()), place(wall.end()), &truth.walls)
+        } else if let Some(line) = downcast_feature::<PpcaLine>(feature) {
+            segment_error(place(line.start()), place(line.end()), &truth.walls)
         } else if let Some(pole) = downcast_feature::<Pole>(feature) {
             truth
                 .poles
@@ -741,6 +743,9 @@ fn draw_features(
             count("endpoint walls", palette::WALL);
             ellipse_at(figure, 0, wall.start(), palette::CORNER);
             ellipse_at(figure, 2, wall.end(), palette::CORNER);
+        } else if let Some(line) = downcast_feature::<PpcaLine>(feature) {
+            figure.segment(place(line.start()), place(line.end()), palette::WALL, 3);
+            count("PPCA lines (IPSLAM clusters)", palette::WALL);
         } else if let Some(line) = downcast_feature::<HLine>(feature) {
             let (colour, width, name) = if line.mspace_dim() >= 3 {
                 (palette::CEILING, 3, "ceiling lines (dim 3)")

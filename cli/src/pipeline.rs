@@ -6,7 +6,7 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressStyle};
 use slam_core::nalgebra::{DMatrix, Matrix3, Vector2};
 use slam_core::{Estimator, Pose2};
-use slam_estimators::Ekf;
+use slam_estimators::{Ekf, FastSlam, Ipslam};
 use slam_sensors::{Dataset, Event, TruthKind};
 
 use crate::config::{Config, EstimatorConfig};
@@ -68,6 +68,27 @@ pub fn make_estimator(
         EstimatorConfig::Ekf(params) => Ok(Box::new(Ekf::new(pose, covariance, params.clone())?)),
         // The poses of an em-polygon run with `poses = "ekf"` come from its EKF.
         EstimatorConfig::EmPolygon(p) => Ok(Box::new(Ekf::new(pose, covariance, p.ekf.clone())?)),
+        EstimatorConfig::FastSlam(params) => {
+            Ok(Box::new(FastSlam::new(pose, covariance, params.clone())?))
+        }
+        EstimatorConfig::Ipslam(params) => {
+            let factory: slam_estimators::ClusterFeatureFactory = std::sync::Arc::new(|c| {
+                let line = slam_features::PpcaLine::from_cluster(
+                    c.mean,
+                    c.direction,
+                    c.principal_variance,
+                    c.sigma2,
+                    c.count,
+                )?;
+                Ok(Box::new(line) as Box<dyn slam_core::Feature>)
+            });
+            Ok(Box::new(Ipslam::new(
+                pose,
+                covariance,
+                params.clone(),
+                factory,
+            )?))
+        }
     }
 }
 
@@ -142,6 +163,22 @@ pub fn run(
                 estimator
                     .predict(motion.as_ref())
                     .map_err(|e| at_time(time, "prediction", e))?;
+                Vec::new()
+            }
+            Event::Scan {
+                scan,
+                robot_from_sensor,
+            } if estimator.uses_scan_points() => {
+                let points: Vec<Vector2<f64>> = scan
+                    .points()
+                    .iter()
+                    .map(|p| Vector2::new(p.range * p.bearing.cos(), p.range * p.bearing.sin()))
+                    .collect();
+                let report = estimator
+                    .update_points(&robot_from_sensor, &points)
+                    .map_err(|e| at_time(time, "update", e))?;
+                updates.associated += report.associated;
+                updates.new_features += report.new_features;
                 Vec::new()
             }
             Event::Scan {

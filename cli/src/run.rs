@@ -103,6 +103,10 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
         truth: truth_map,
         ..
     } = loaded;
+    let dataset = match &config.data.odometry_from_poses {
+        Some(noise) => crate::data::odometry_from_poses(dataset, noise, config.data.seed)?,
+        None => dataset,
+    };
     let name = dataset.name.clone();
     let landmarks = dataset.landmarks.clone();
     let bar = progress_bar(dataset.events.len(), quiet);
@@ -345,6 +349,43 @@ mod tests {
         // The trajectory reads back as TUM, one pose per step.
         let trajectory = slam_sensors::data::read_tum(&dir.join("out/trajectory.tum")).unwrap();
         assert_eq!(trajectory.len() as u64, metrics["steps"].as_u64().unwrap());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn particle_filters_run_from_the_same_config_with_one_word_changed() {
+        let dir = temp_dir("particles");
+        let world = short_world(&dir);
+        for (estimator, extra) in [("fastslam", "particles = 6"), ("ipslam", "particles = 6")] {
+            let mut trajectories = Vec::new();
+            for run in 0..2 {
+                let out = dir.join(format!("{estimator}-{run}"));
+                let text = format!(
+                    "[data]\nspec = \"world:{}\"\n[estimator]\ntype = \"{estimator}\"\n{extra}\n\
+                     [output]\nplots = false\ndir = \"{}\"\n",
+                    world.display(),
+                    out.display()
+                );
+                let config = Config::from_toml(&text, "test").unwrap();
+                run_config(&config, true).unwrap();
+                let metrics: serde_json::Value = serde_json::from_str(
+                    &std::fs::read_to_string(out.join("metrics.json")).unwrap(),
+                )
+                .unwrap();
+                assert_eq!(metrics["estimator"], estimator);
+                let ate = metrics["ate_rmse_m"].as_f64().unwrap();
+                assert!(ate < 1.0, "{estimator}: ATE {ate}");
+                assert!(
+                    metrics["map_error_m"].as_f64().is_some(),
+                    "{estimator}: no map error"
+                );
+                trajectories.push(std::fs::read_to_string(out.join("trajectory.tum")).unwrap());
+            }
+            assert_eq!(
+                trajectories[0], trajectories[1],
+                "{estimator}: same seed, same run"
+            );
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

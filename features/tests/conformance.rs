@@ -5,11 +5,22 @@ use proptest::prelude::*;
 use slam_core::nalgebra::{Vector2, Vector3};
 use slam_core::testing::{ConformanceParams, check_feature};
 use slam_core::{Feature, test_feature_conformance};
-use slam_features::{HLine, Point, Pole, Wall};
+use slam_features::{HLine, Point, Pole, PpcaLine, Wall};
 
 test_feature_conformance!(
     wall_conforms,
     Wall::new(Vector2::new(1.0, 2.0), Vector2::new(4.0, -1.0)).unwrap()
+);
+test_feature_conformance!(
+    ppca_line_conforms,
+    PpcaLine::from_cluster(
+        Vector2::new(1.0, 2.0),
+        Vector2::new(0.6, 0.8),
+        2.5,
+        1e-4,
+        90
+    )
+    .unwrap()
 );
 test_feature_conformance!(
     hline_conforms,

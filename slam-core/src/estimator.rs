@@ -2,10 +2,10 @@
 //! that the `slam` command can swap one for another by configuration (paper section V: "the
 //! M-space feature representation is orthogonal to the choice of SLAM algorithm").
 
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, Vector2};
 use serde::{Deserialize, Serialize};
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::map::{FeatureMap, RowOwner};
 use crate::measurement::DynMeasurementModel;
 use crate::motion::MotionModel;
@@ -58,6 +58,28 @@ pub trait Estimator<P: RobotPose> {
 
     /// Covariance of one row group of the map's M-space perturbations, if the estimator has it.
     fn row_covariance(&self, owner: RowOwner) -> Option<DMatrix<f64>>;
+
+    /// Whether the estimator builds its map from raw scan points
+    /// ([`update_points`](Estimator::update_points)) rather than from extracted observations
+    /// (a particle filter with PPCA line maps). Default: false.
+    fn uses_scan_points(&self) -> bool {
+        false
+    }
+
+    /// Incorporates the valid points of one planar range scan, in the sensor frame (x
+    /// forward, y left, m), taken by a sensor at `robot_from_sensor`. Default: an error (the
+    /// estimator takes observations).
+    fn update_points(
+        &mut self,
+        robot_from_sensor: &Pose3,
+        points: &[Vector2<f64>],
+    ) -> Result<UpdateReport> {
+        let _ = (robot_from_sensor, points);
+        Err(Error::InvalidArgument(format!(
+            "the {} estimator takes observations, not scan points",
+            self.name()
+        )))
+    }
 
     /// The landmark id the data gave a feature (known data association), if any.
     fn landmark_id(&self, id: crate::FeatureId) -> Option<u64> {

@@ -34,6 +34,7 @@ use slam_core::{
 };
 
 use crate::covariance::StateCovariance;
+use crate::lifecycle::BoundingBox;
 use association::{Candidate, Choice};
 
 /// How observations without landmark ids are matched to features.
@@ -183,44 +184,6 @@ impl<P> Default for Track<P> {
             views: Vec::new(),
             landmark_id: None,
         }
-    }
-}
-
-/// A horizontal axis-aligned bounding box.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct BoundingBox {
-    lo: [f64; 2],
-    hi: [f64; 2],
-}
-
-impl Default for BoundingBox {
-    fn default() -> Self {
-        BoundingBox {
-            lo: [f64::INFINITY; 2],
-            hi: [f64::NEG_INFINITY; 2],
-        }
-    }
-}
-
-impl BoundingBox {
-    /// The box of the x, y values of every point block (scalars ignored).
-    fn of(coordinates: &Coordinates) -> Self {
-        let mut bbox = BoundingBox::default();
-        for block in coordinates.blocks() {
-            let (x, y) = match block {
-                CoordBlock::Point3(p) => (p.x, p.y),
-                CoordBlock::Point2(p) => (p.x, p.y),
-                CoordBlock::Scalar(_) => continue,
-            };
-            bbox.lo = [bbox.lo[0].min(x), bbox.lo[1].min(y)];
-            bbox.hi = [bbox.hi[0].max(x), bbox.hi[1].max(y)];
-        }
-        bbox
-    }
-
-    /// Whether the boxes come within `margin` of each other.
-    fn near(&self, other: &BoundingBox, margin: f64) -> bool {
-        (0..2).all(|k| self.lo[k] - margin <= other.hi[k] && other.lo[k] - margin <= self.hi[k])
     }
 }
 

@@ -9,9 +9,12 @@ use slam_core::{
     linearize,
 };
 
+use crate::lifecycle::{
+    BoundingBox, growth_prior, placed_by_triangulation, ready_subspace, stack_priors,
+};
+
 use super::{
-    BoundingBox, Decision, Ekf, Pairing, Track, View, add_to_pose, coordinate_generators,
-    project_out, stack,
+    Decision, Ekf, Pairing, Track, View, add_to_pose, coordinate_generators, project_out, stack,
 };
 
 /// Largest `|B (x_new - x_old)|` accepted for a change outside the M-space.
@@ -254,20 +257,16 @@ impl<P: RobotPose> Ekf<P> {
         loop {
             let options = self.map.get(id)?.growth_options();
             let track = self.tracks.entry(id).or_default();
-            let ready = options
-                .iter()
-                .find(|s| track.revealed.get(s.name).copied().unwrap_or(0) >= threshold);
-            let Some(subspace) = ready else { break };
+            let Some(subspace) = ready_subspace(&options, &track.revealed, threshold) else {
+                break;
+            };
             track.revealed.remove(subspace.name);
             let growth = self.map.activate(id, subspace.name)?;
-            let n = growth.rows.len();
-            let prior = self
-                .map
-                .get(id)?
-                .growth_prior(&growth)
-                .filter(|p| p.shape() == (n, n) && p.iter().all(|v| v.is_finite()))
-                .unwrap_or_else(|| DMatrix::identity(n, n) * self.params.new_row_variance);
-            priors.push(prior);
+            priors.push(growth_prior(
+                self.map.get(id)?,
+                &growth,
+                self.params.new_row_variance,
+            ));
         }
         let mut new_dim = self.map.get(id)?.mspace_dim();
         let mut triangulated = false;
@@ -284,20 +283,7 @@ impl<P: RobotPose> Ekf<P> {
             return Ok(false);
         }
         let added = new_dim - old_dim;
-        let mut block = DMatrix::zeros(added, added);
-        let mut at = 0;
-        for prior in priors {
-            let n = prior.nrows();
-            if at + n > added {
-                return Err(Error::DimensionMismatch {
-                    what: "growth priors".into(),
-                    expected: added,
-                    got: at + n,
-                });
-            }
-            block.view_mut((at, at), (n, n)).copy_from(&prior);
-            at += n;
-        }
+        let block = stack_priors(&priors, added)?;
         let feature = self.map.get(id)?;
         let generators = feature.projection()?.rows(old_dim, added)
             * coordinate_generators(feature.coordinates());
@@ -326,63 +312,27 @@ impl<P: RobotPose> Ekf<P> {
         let Some(track) = self.tracks.get(&id) else {
             return Ok(false);
         };
-        let feature = self.map.get(id)?;
-        let options = feature.growth_options();
-        let blocks = feature.coordinates().num_blocks();
-        if options.is_empty() || track.views.len() < 2 || (0..blocks).any(|k| feature.is_shared(k))
-        {
-            return Ok(false);
-        }
         // The current observation is the last view; triangulate it with the others.
-        let (current, others) = track
-            .views
-            .split_last()
-            .ok_or(Error::Singular("triangulation without views".into()))?;
+        let Some((current, others)) = track.views.split_last() else {
+            return Ok(false);
+        };
         let other_views: Vec<_> = others
             .iter()
             .map(|v| (v.world_from_sensor, v.measurement.as_ref()))
             .collect();
-        let Ok(Some(triangulated)) = observation
-            .measurement
-            .triangulate_dyn(&current.world_from_sensor, &other_views)
-        else {
-            return Ok(false);
-        };
-        let reveals: Vec<&'static str> = triangulated
-            .reveals
-            .iter()
-            .copied()
-            .filter(|name| options.iter().any(|s| s.name == *name))
-            .collect();
-        if reveals.is_empty() {
-            return Ok(false);
+        let grown = placed_by_triangulation(
+            self.map.get(id)?,
+            observation.measurement.as_ref(),
+            &current.world_from_sensor,
+            &other_views,
+        )?;
+        match grown {
+            Some(grown) => {
+                self.map.replace(id, grown)?;
+                Ok(true)
+            }
+            None => Ok(false),
         }
-        let old_dim = feature.mspace_dim();
-        let mut grown = slam_core::dyn_clone::clone_box(feature);
-        for name in &reveals {
-            grown.activate(name)?;
-        }
-        let x_old = feature.coordinates().to_vector();
-        let x_tri = feature
-            .conform(triangulated.feature.coordinates().clone())
-            .to_vector();
-        let x_new = if old_dim == 0 {
-            x_tri
-        } else {
-            let b = grown.projection()?;
-            let b_dual = grown.dual()?;
-            let change = &x_tri - &x_old;
-            let kept = b_dual.columns(0, old_dim) * (b.rows(0, old_dim) * change);
-            x_tri - kept
-        };
-        let coordinates = feature.coordinates().with_vector(&x_new)?;
-        // Views that place the feature where it cannot go (a line turned around) are
-        // ignored: no growth this time.
-        if grown.set_coordinates(coordinates).is_err() {
-            return Ok(false);
-        }
-        self.map.replace(id, grown)?;
-        Ok(true)
     }
 
     /// The earlier views of a feature that grew by triangulation, as measurements of its new

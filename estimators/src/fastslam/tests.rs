@@ -1,0 +1,263 @@
+//! FastSLAM on a small simulated range-bearing world (points on a ring), and the
+//! resampling's statistics.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use slam_core::nalgebra::{DMatrix, Vector3};
+use slam_core::{Estimator, MotionModel, Observation, Pose2, Pose3, downcast_feature};
+use slam_features::Point;
+use slam_sensors::models::RangeBearing;
+use slam_sensors::odometry::{Integration, Unicycle};
+
+use super::*;
+
+const SIGMA_RANGE: f64 = 0.05;
+const SIGMA_BEARING: f64 = 0.02;
+
+/// A simulated run: the unicycle odometry of each step, its observations and the true pose.
+struct World {
+    landmarks: Vec<Vector3<f64>>,
+    /// Landmarks seen at least once.
+    seen: std::collections::BTreeSet<usize>,
+    steps: Vec<(Unicycle, Vec<Observation>, Pose2)>,
+}
+
+/// A robot on a circle of radius 5 m among 16 landmarks on rings of 3 and 7 m, for `steps`
+/// steps of 0.2 s; landmarks within 6 m are seen.
+fn world(steps: usize, with_ids: bool, seed: u64) -> World {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let noise = |sigma: f64, rng: &mut ChaCha8Rng| Normal::new(0.0, sigma).unwrap().sample(rng);
+    let landmarks: Vec<Vector3<f64>> = (0..16)
+        .map(|i| {
+            let angle = i as f64 * std::f64::consts::TAU / 8.0 + if i >= 8 { 0.4 } else { 0.0 };
+            let radius = if i < 8 { 3.0 } else { 7.0 };
+            Vector3::new(radius * angle.cos(), 5.0 + radius * angle.sin(), 0.0)
+        })
+        .collect();
+    let (v, omega, dt) = (1.0, 0.2, 0.2);
+    let mut truth = Pose2::identity();
+    let mut out = Vec::new();
+    let mut seen = std::collections::BTreeSet::new();
+    for _ in 0..steps {
+        let exact = Unicycle::new(v, omega, dt, 0.05, 0.02, Integration::Arc).unwrap();
+        truth = exact.apply_control(&truth, &exact.control()).unwrap();
+        let measured = Unicycle::new(
+            v + noise(0.05, &mut rng),
+            omega + noise(0.02, &mut rng),
+            dt,
+            0.05,
+            0.02,
+            Integration::Arc,
+        )
+        .unwrap();
+        let mut observations = Vec::new();
+        for (id, l) in landmarks.iter().enumerate() {
+            let local = truth.inverse().transform_point(&l.xy());
+            let range = local.norm();
+            if range > 6.0 {
+                continue;
+            }
+            seen.insert(id);
+            let measurement = RangeBearing::new(
+                range + noise(SIGMA_RANGE, &mut rng),
+                local.y.atan2(local.x) + noise(SIGMA_BEARING, &mut rng),
+                SIGMA_RANGE,
+                SIGMA_BEARING,
+            )
+            .unwrap();
+            observations.push(Observation {
+                robot_from_sensor: Pose3::identity(),
+                measurement: Box::new(measurement),
+                landmark_id: with_ids.then_some(id as u64),
+            });
+        }
+        out.push((measured, observations, truth));
+    }
+    World {
+        landmarks,
+        seen,
+        steps: out,
+    }
+}
+
+fn run(world: &World, params: FastSlamParams) -> (FastSlam<Pose2>, f64) {
+    let mut filter = FastSlam::new(Pose2::identity(), DMatrix::zeros(3, 3), params).unwrap();
+    let mut worst: f64 = 0.0;
+    for (motion, observations, truth) in &world.steps {
+        filter.predict(motion).unwrap();
+        filter.update(observations).unwrap();
+        worst = worst.max((filter.pose().translation() - truth.translation()).norm());
+    }
+    (filter, worst)
+}
+
+fn small(particles: usize) -> FastSlamParams {
+    FastSlamParams {
+        particles,
+        confirm_after: 2,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn known_ids_map_every_landmark_close_to_the_truth() {
+    let world = world(60, true, 3);
+    let (filter, worst) = run(&world, small(20));
+    assert!(worst < 0.3, "largest position error {worst}");
+    let map = filter.map();
+    assert!(
+        world.seen.len() >= 10,
+        "the test sees {} landmarks",
+        world.seen.len()
+    );
+    assert_eq!(map.len(), world.seen.len(), "one feature per landmark id");
+    for (id, feature) in map.iter() {
+        let point = downcast_feature::<Point>(feature).unwrap();
+        let landmark = filter.landmark_id(id).unwrap() as usize;
+        let error = (point.position().xy() - world.landmarks[landmark].xy()).norm();
+        assert!(error < 0.3, "landmark {landmark}: error {error}");
+        assert!(filter.row_covariance(RowOwner::Feature(id)).is_some());
+    }
+}
+
+#[test]
+fn the_improved_proposal_tracks_with_few_particles() {
+    let world = world(60, false, 4);
+    let params = FastSlamParams {
+        proposal: Proposal::Improved,
+        ..small(5)
+    };
+    let (filter, worst) = run(&world, params);
+    assert!(worst < 0.2, "largest position error {worst}");
+    let confirmed = filter
+        .map()
+        .iter()
+        .filter(|(_, f)| f.mspace_dim() > 0)
+        .count();
+    let seen = world.seen.len();
+    assert!(
+        (seen - 1..=seen + 1).contains(&confirmed),
+        "{confirmed} features for {seen} landmarks"
+    );
+}
+
+#[test]
+fn unknown_ids_are_associated_per_particle() {
+    let world = world(60, false, 4);
+    let (filter, worst) = run(&world, small(20));
+    assert!(worst < 0.3, "largest position error {worst}");
+    let confirmed = filter
+        .map()
+        .iter()
+        .filter(|(_, f)| f.mspace_dim() > 0)
+        .count();
+    let seen = world.seen.len();
+    assert!(
+        (seen - 1..=seen + 1).contains(&confirmed),
+        "{confirmed} features for {seen} landmarks"
+    );
+}
+
+#[test]
+fn results_do_not_depend_on_the_thread_count() {
+    let world = world(25, false, 5);
+    let outcome = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let (filter, _) = run(&world, small(16));
+            let improved = FastSlamParams {
+                proposal: Proposal::Improved,
+                ..small(8)
+            };
+            let (improved, _) = run(&world, improved);
+            let poses: Vec<(Pose2, f64)> = filter.particle_poses();
+            let map: Vec<Vec<f64>> = filter
+                .map()
+                .iter()
+                .map(|(_, f)| f.coordinates().to_vector().as_slice().to_vec())
+                .collect();
+            (poses, map, filter.resamplings(), improved.particle_poses())
+        })
+    };
+    let one = outcome(1);
+    let two = outcome(2);
+    assert!(one.2 > 0, "the run resampled");
+    assert_eq!(one, two);
+    // Another seed gives another result (the seed is used).
+    let (other, _) = run(
+        &world,
+        FastSlamParams {
+            seed: 99,
+            ..small(16)
+        },
+    );
+    assert_ne!(other.particle_poses(), one.0);
+}
+
+#[test]
+fn systematic_resampling_keeps_the_weight_distribution() {
+    // Each index is drawn floor(N w) or ceil(N w) times, and on average N w times.
+    let weights = [0.05, 0.4, 0.0, 0.15, 0.3, 0.1];
+    let n = weights.len();
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let uniform = rand_distr::Uniform::new(0.0, 1.0 / n as f64).unwrap();
+    let trials = 2000;
+    let mut totals = [0usize; 6];
+    for _ in 0..trials {
+        let chosen = systematic_resample(&weights, uniform.sample(&mut rng));
+        assert_eq!(chosen.len(), n);
+        let mut counts = [0usize; 6];
+        for i in chosen {
+            counts[i] += 1;
+        }
+        for k in 0..n {
+            let expected = n as f64 * weights[k];
+            assert!(
+                counts[k] as f64 >= expected.floor() - 1e-9
+                    && counts[k] as f64 <= expected.ceil() + 1e-9,
+                "index {k}: {} draws for weight {}",
+                counts[k],
+                weights[k]
+            );
+            totals[k] += counts[k];
+        }
+    }
+    // Mean counts against N w: the fraction of u giving the extra draw has a binomial
+    // spread of at most 0.5 / sqrt(trials); 4 sigma.
+    for k in 0..n {
+        let mean = totals[k] as f64 / trials as f64;
+        let expected = n as f64 * weights[k];
+        assert!(
+            (mean - expected).abs() < 4.0 * 0.5 / (trials as f64).sqrt(),
+            "index {k}: mean {mean}, expected {expected}"
+        );
+    }
+    assert_eq!(totals[2], 0, "a zero weight is never drawn");
+}
+
+#[test]
+fn log_weights_normalize_without_overflow() {
+    let w = normalized(&[-1e4, -1e4 + 2f64.ln(), f64::NEG_INFINITY]);
+    assert!((w[0] - 1.0 / 3.0).abs() < 1e-12 && (w[1] - 2.0 / 3.0).abs() < 1e-12);
+    assert_eq!(w[2], 0.0);
+}
+
+#[test]
+fn bad_parameters_are_errors() {
+    for params in [
+        FastSlamParams {
+            particles: 0,
+            ..Default::default()
+        },
+        FastSlamParams {
+            resample_threshold: 1.5,
+            ..Default::default()
+        },
+    ] {
+        assert!(FastSlam::new(Pose2::identity(), DMatrix::zeros(3, 3), params).is_err());
+    }
+}

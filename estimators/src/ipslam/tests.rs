@@ -1,0 +1,100 @@
+//! IPSLAM in a simulated rectangular room.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use slam_core::nalgebra::{DMatrix, Vector2};
+use slam_core::{Estimator, MotionModel, Pose2, Pose3};
+use slam_sensors::odometry::{Integration, Unicycle};
+
+use super::*;
+
+/// Range from `origin` along `angle` to the walls of the room `[0, 10] x [0, 6]`.
+fn ray(origin: Vector2<f64>, angle: f64) -> f64 {
+    let d = Vector2::new(angle.cos(), angle.sin());
+    let mut best = f64::INFINITY;
+    for (axis, value) in [(0, 0.0), (0, 10.0), (1, 0.0), (1, 6.0)] {
+        if d[axis].abs() > 1e-12 {
+            let t = (value - origin[axis]) / d[axis];
+            if t > 0.0 {
+                best = best.min(t);
+            }
+        }
+    }
+    best
+}
+
+#[test]
+fn the_room_becomes_a_few_long_clusters_and_the_pose_stays_close() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let range_noise = Normal::new(0.0, 0.01).unwrap();
+    let factory: ClusterFeatureFactory = Arc::new(|_: &Cluster| {
+        Err(slam_core::Error::InvalidArgument(
+            "no features in this test".into(),
+        ))
+    });
+    let params = IpslamParams {
+        particles: 20,
+        min_travel: 0.0,
+        min_turn_deg: 0.0,
+        ..Default::default()
+    };
+    let start = Pose2::new(2.0, 3.0, 0.0);
+    let mut filter = Ipslam::new(start, DMatrix::zeros(3, 3), params, factory).unwrap();
+    let mut truth = start;
+    let mut worst: f64 = 0.0;
+    for step in 0..30 {
+        let omega = if step < 15 { 0.0 } else { 0.3 };
+        let exact = Unicycle::new(0.5, omega, 0.5, 0.05, 0.03, Integration::Arc).unwrap();
+        truth = exact.apply_control(&truth, &exact.control()).unwrap();
+        let measured = Unicycle::new(
+            0.5 + 0.02 * Normal::new(0.0, 1.0).unwrap().sample(&mut rng),
+            omega + 0.01 * Normal::new(0.0, 1.0).unwrap().sample(&mut rng),
+            0.5,
+            0.05,
+            0.03,
+            Integration::Arc,
+        )
+        .unwrap();
+        filter.predict(&measured).unwrap();
+        let points: Vec<Vector2<f64>> = (0..181)
+            .map(|k| {
+                let bearing = (k as f64 - 90.0).to_radians();
+                let range =
+                    ray(truth.translation(), truth.theta + bearing) + range_noise.sample(&mut rng);
+                Vector2::new(range * bearing.cos(), range * bearing.sin())
+            })
+            .collect();
+        filter.update_points(&Pose3::identity(), &points).unwrap();
+        worst = worst.max((filter.pose().translation() - truth.translation()).norm());
+    }
+    assert_eq!(filter.scans_processed(), 30);
+    assert!(worst < 0.25, "largest position error {worst}");
+    let clusters = filter.clusters();
+    assert!(
+        (4..=16).contains(&clusters.len()),
+        "{} clusters for 4 walls",
+        clusters.len()
+    );
+    // Every cluster lies on a wall and is thin.
+    for c in &clusters {
+        let to_wall = [c.mean.x, 10.0 - c.mean.x, c.mean.y, 6.0 - c.mean.y]
+            .into_iter()
+            .fold(f64::INFINITY, |a, b| a.min(b.abs()));
+        assert!(to_wall < 0.25, "{c:?} is {to_wall} m from every wall");
+        assert!(c.sigma2.sqrt() < 0.05, "{c:?}");
+    }
+    // The map holds no feature: the factory refused them all.
+    assert!(filter.map().is_empty());
+}
+
+#[test]
+fn observations_are_not_used_and_bad_parameters_are_errors() {
+    let factory: ClusterFeatureFactory =
+        Arc::new(|_: &Cluster| Err(slam_core::Error::InvalidArgument("none".into())));
+    let bad = IpslamParams {
+        match_angle_deg: 120.0,
+        ..Default::default()
+    };
+    assert!(Ipslam::new(Pose2::identity(), DMatrix::zeros(3, 3), bad, factory).is_err());
+}

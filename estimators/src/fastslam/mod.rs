@@ -1188,28 +1188,12 @@ impl<P: RobotPose> Estimator<P> for FastSlam<P> {
             reports.push(report);
         }
         // Keep the log weights near zero (they only matter relative to each other).
-        let max = self
-            .particles
-            .iter()
-            .map(|p| p.log_weight)
-            .fold(f64::NEG_INFINITY, f64::max);
-        if max.is_finite() {
-            for p in &mut self.particles {
-                p.log_weight -= max;
-            }
-        }
-        self.best = self
-            .particles
-            .iter()
-            .enumerate()
-            .fold((0, f64::NEG_INFINITY), |(bi, bw), (i, p)| {
-                if p.log_weight > bw {
-                    (i, p.log_weight)
-                } else {
-                    (bi, bw)
-                }
-            })
-            .0;
+        self.best = crate::fastslam::normalize_log_weights(
+            self.particles
+                .iter_mut()
+                .map(|p| &mut p.log_weight)
+                .collect(),
+        );
         let report = reports.swap_remove(self.best);
         self.mean = self.weighted_mean();
         self.maybe_resample();
@@ -1249,3 +1233,24 @@ impl<P: RobotPose> Estimator<P> for FastSlam<P> {
 
 #[cfg(test)]
 mod tests;
+
+/// Shifts log weights so that the largest is zero (they only matter relative to each other)
+/// and returns the index of the largest (the first one on ties).
+pub(crate) fn normalize_log_weights(mut log_weights: Vec<&mut f64>) -> usize {
+    let max = log_weights
+        .iter()
+        .map(|w| **w)
+        .fold(f64::NEG_INFINITY, f64::max);
+    if max.is_finite() {
+        for w in &mut log_weights {
+            **w -= max;
+        }
+    }
+    log_weights
+        .iter()
+        .enumerate()
+        .fold((0, f64::NEG_INFINITY), |(bi, bw), (i, w)| {
+            if **w > bw { (i, **w) } else { (bi, bw) }
+        })
+        .0
+}

@@ -448,28 +448,12 @@ impl<P: RobotPose> Estimator<P> for Ipslam<P> {
         for (particle, step) in self.particles.iter_mut().zip(&steps) {
             particle.log_weight += self.params.likelihood_scale * step.log_likelihood;
         }
-        let max = self
-            .particles
-            .iter()
-            .map(|p| p.log_weight)
-            .fold(f64::NEG_INFINITY, f64::max);
-        if max.is_finite() {
-            for p in &mut self.particles {
-                p.log_weight -= max;
-            }
-        }
-        self.best = self
-            .particles
-            .iter()
-            .enumerate()
-            .fold((0, f64::NEG_INFINITY), |(bi, bw), (i, p)| {
-                if p.log_weight > bw {
-                    (i, p.log_weight)
-                } else {
-                    (bi, bw)
-                }
-            })
-            .0;
+        self.best = crate::fastslam::normalize_log_weights(
+            self.particles
+                .iter_mut()
+                .map(|p| &mut p.log_weight)
+                .collect(),
+        );
         let report = UpdateReport {
             associated: steps[self.best].merged,
             new_features: steps[self.best].added,

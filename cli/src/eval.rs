@@ -1271,11 +1271,12 @@ mod tests {
         );
     }
 
-    fn test_dir(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("slam-eval-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
+    /// A fresh folder for one test's files, removed when dropped.
+    fn test_dir(name: &str) -> tempfile::TempDir {
+        tempfile::Builder::new()
+            .prefix(&format!("slam-eval-{name}-"))
+            .tempdir()
+            .unwrap()
     }
 
     fn args(gt: &Path, est: &Path) -> EvalArgs {
@@ -1299,10 +1300,10 @@ mod tests {
         for p in &mut est {
             p.time += 0.003;
         }
-        let (gt_path, est_path) = (dir.join("gt.tum"), dir.join("est.tum"));
+        let (gt_path, est_path) = (dir.path().join("gt.tum"), dir.path().join("est.tum"));
         slam_sensors::data::write_tum(&gt_path, &gt).unwrap();
         slam_sensors::data::write_tum(&est_path, &est[..45]).unwrap();
-        let json = dir.join("eval.json");
+        let json = dir.path().join("eval.json");
         let mut a = args(&gt_path, &est_path);
         a.json = Some(json.clone());
         run(&a).unwrap();
@@ -1314,7 +1315,7 @@ mod tests {
         assert!(value["ate_m"]["rmse"].as_f64().unwrap() < 1e-5);
         assert_eq!(value["rpe"]["translation_m"]["count"], 44);
         assert!(value["rpe"]["rotation_deg"]["max"].as_f64().unwrap() < 1e-4);
-        let names: Vec<_> = std::fs::read_dir(&dir)
+        let names: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
             .map(|e| e.unwrap().file_name())
             .collect();
@@ -1347,9 +1348,9 @@ mod tests {
     fn run_errors_are_clear() {
         let dir = test_dir("errors");
         let (gt_path, est_path, empty) = (
-            dir.join("gt.tum"),
-            dir.join("est.tum"),
-            dir.join("empty.tum"),
+            dir.path().join("gt.tum"),
+            dir.path().join("est.tum"),
+            dir.path().join("empty.tum"),
         );
         slam_sensors::data::write_tum(&gt_path, &helix(20)).unwrap();
         let late: Vec<_> = helix(20)
@@ -1373,7 +1374,7 @@ mod tests {
             error.contains("gt.tum") && error.contains("est.tum") && error.contains("--max-dt"),
             "{error}"
         );
-        let missing = run(&args(&dir.join("missing.tum"), &est_path))
+        let missing = run(&args(&dir.path().join("missing.tum"), &est_path))
             .unwrap_err()
             .to_string();
         assert!(missing.contains("missing.tum"), "{missing}");
@@ -1384,7 +1385,7 @@ mod tests {
         bad.max_dt = -0.1;
         assert!(matches!(run(&bad), Err(CliError::Usage(_))));
         bad.max_dt = 0.01;
-        bad.json = Some(dir.join("no-such-folder").join("eval.json"));
+        bad.json = Some(dir.path().join("no-such-folder").join("eval.json"));
         assert!(run(&bad).is_err());
     }
 }

@@ -421,12 +421,12 @@ fn figure(
 mod tests {
     use super::*;
 
-    fn temp_dir(name: &str) -> std::path::PathBuf {
-        let dir =
-            std::env::temp_dir().join(format!("slam-cli-polygon-{}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
+    /// A fresh folder for one test's files, removed when dropped.
+    fn temp_dir(name: &str) -> tempfile::TempDir {
+        tempfile::Builder::new()
+            .prefix(&format!("slam-cli-polygon-{name}-"))
+            .tempdir()
+            .unwrap()
     }
 
     /// A CARMEN log of a robot in a 6 m x 4 m room, scanning from a few places.
@@ -471,35 +471,36 @@ mod tests {
     #[test]
     fn a_carmen_room_with_given_poses_becomes_four_walls_with_shared_corners() {
         let dir = temp_dir("room");
-        let log = room_log(&dir);
+        let log = room_log(dir.path());
         let text = format!(
             "[data]\nspec = \"carmen:{}\"\n[estimator]\ntype = \"em-polygon\"\n[output]\ndir = \"{}\"\n",
             log.display(),
-            dir.join("out").display()
+            dir.path().join("out").display()
         );
         let config = Config::from_toml(&text, "test").unwrap();
         let summary = crate::run::run_config(&config, true).unwrap();
         assert!(summary.contains("4 segments"), "{summary}");
-        let metrics: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("out/metrics.json")).unwrap())
-                .unwrap();
+        let metrics: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
+        )
+        .unwrap();
         assert_eq!(metrics["segments"], 4);
         assert_eq!(metrics["closed_polylines"], 1);
         assert_eq!(metrics["shared_corners"], 4);
         assert!(metrics["mean_point_to_segment_m"].as_f64().unwrap() < 0.01);
         let ratio = metrics["compression_ratio"].as_f64().unwrap();
         assert_eq!(ratio, metrics["points"].as_f64().unwrap() / 8.0);
-        let map: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("out/map.json")).unwrap())
-                .unwrap();
+        let map: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("out/map.json")).unwrap(),
+        )
+        .unwrap();
         let features = map["features"].as_array().unwrap();
         assert_eq!(features.len(), 4);
         assert!(features.iter().all(|f| f["type"] == "wall"));
         assert_eq!(map["shared_blocks"].as_array().unwrap().len(), 4);
         for file in ["trajectory.tum", "map.svg", "map.png", "map-walls.png"] {
-            assert!(dir.join("out").join(file).exists(), "{file} missing");
+            assert!(dir.path().join("out").join(file).exists(), "{file} missing");
         }
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// The Intel lab with its SLAM-corrected poses (about 160,000 points): run with
@@ -517,20 +518,20 @@ mod tests {
         let text = format!(
             "[data]\nspec = \"carmen:{}\"\n[estimator]\ntype = \"em-polygon\"\n[output]\ndir = \"{}\"\n",
             log.display(),
-            dir.join("out").display()
+            dir.path().join("out").display()
         );
         let config = Config::from_toml(&text, "test").unwrap();
         crate::run::run_config(&config, true).unwrap();
-        let metrics: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("out/metrics.json")).unwrap())
-                .unwrap();
+        let metrics: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
+        )
+        .unwrap();
         let points = metrics["points"].as_u64().unwrap();
         let mean = metrics["mean_point_to_segment_m"].as_f64().unwrap();
         let ratio = metrics["compression_ratio"].as_f64().unwrap();
         assert!((150_000..170_000).contains(&points), "{points} points");
         assert!(mean < 0.05, "mean point-to-segment distance {mean}");
         assert!(ratio > 50.0, "compression {ratio}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
@@ -541,7 +542,7 @@ mod tests {
         let text = format!(
             "[data]\nspec = \"world:{}\"\n[estimator]\ntype = \"em-polygon\"\n[output]\ndir = \"{}\"\n",
             world.display(),
-            dir.join("out").display()
+            dir.path().join("out").display()
         );
         let config = Config::from_toml(&text, "test").unwrap();
         let error = crate::run::run_config(&config, true)
@@ -559,6 +560,5 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(error.contains("sigma"), "{error}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -405,32 +405,28 @@ mod tests {
         }
     }
 
-    fn temp(name: &str) -> PathBuf {
-        std::env::temp_dir().join(format!("slam-cli-prior-{}-{name}", std::process::id()))
-    }
-
     #[test]
     fn a_built_in_scene_is_drawn() {
-        let out = temp("square.png");
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("square.png");
         run(&args("square", out.clone())).unwrap();
         assert!(std::fs::metadata(&out).unwrap().len() > 1000);
-        std::fs::remove_file(&out).unwrap();
     }
 
     #[test]
     fn bad_prior_files_and_names_are_errors() {
-        let file = temp("bad.prior");
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("bad.prior");
         std::fs::write(
             &file,
             "name: Bad\norder: 2\npriorlet same_region:\n  rho_1 === 2\n",
         )
         .unwrap();
-        let mut a = args("square", temp("unused.png"));
+        let mut a = args("square", dir.path().join("unused.png"));
         a.prior_files = vec![file.clone()];
         let error = run(&a).unwrap_err().to_string();
         assert!(error.contains("bad.prior:4:11"), "{error}");
-        std::fs::remove_file(&file).unwrap();
-        let mut a = args("square", temp("unused.png"));
+        let mut a = args("square", dir.path().join("unused.png"));
         a.prior = "No such prior".into();
         assert!(run(&a).unwrap_err().to_string().contains("unknown prior"));
     }
@@ -443,11 +439,11 @@ mod tests {
             eprintln!("skipped: {} is absent", log.display());
             return;
         }
-        let out = temp("intel.png");
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("intel.png");
         let mut a = args(&format!("carmen:{}", log.display()), out.clone());
         a.sigma_range = 0.02;
         run(&a).unwrap();
         assert!(std::fs::metadata(&out).unwrap().len() > 1000);
-        std::fs::remove_file(&out).unwrap();
     }
 }

@@ -310,20 +310,21 @@ mod tests {
         path
     }
 
-    fn temp_dir(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("slam-cli-run-{}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
+    /// A fresh folder for one test's files, removed when dropped.
+    fn temp_dir(name: &str) -> tempfile::TempDir {
+        tempfile::Builder::new()
+            .prefix(&format!("slam-cli-run-{name}-"))
+            .tempdir()
+            .unwrap()
     }
 
     #[test]
     fn a_simulated_run_writes_every_output_and_maps_the_walls() {
         let dir = temp_dir("outputs");
-        let world = short_world(&dir);
+        let world = short_world(dir.path());
         let mut config = Config::default();
         config.data.spec = format!("world:{}", world.display());
-        config.output.dir = dir.join("out");
+        config.output.dir = dir.path().join("out");
         let summary = run_config(&config, true).unwrap();
         assert!(summary.contains("ATE"), "{summary}");
         for file in [
@@ -334,11 +335,12 @@ mod tests {
             "map.svg",
             "map.png",
         ] {
-            assert!(dir.join("out").join(file).exists(), "{file} missing");
+            assert!(dir.path().join("out").join(file).exists(), "{file} missing");
         }
-        let metrics: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("out/metrics.json")).unwrap())
-                .unwrap();
+        let metrics: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
+        )
+        .unwrap();
         let ate = metrics["ate_rmse_m"].as_f64().unwrap();
         let map_error = metrics["map_error_m"].as_f64().unwrap();
         assert!(ate < 0.1, "ATE {ate}");
@@ -347,19 +349,19 @@ mod tests {
         let estimated_ends: u64 = ["3", "4"].iter().filter_map(|d| walls[d].as_u64()).sum();
         assert!(estimated_ends >= 5, "walls by dimension: {walls}");
         // The trajectory reads back as TUM, one pose per step.
-        let trajectory = slam_sensors::data::read_tum(&dir.join("out/trajectory.tum")).unwrap();
+        let trajectory =
+            slam_sensors::data::read_tum(&dir.path().join("out/trajectory.tum")).unwrap();
         assert_eq!(trajectory.len() as u64, metrics["steps"].as_u64().unwrap());
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
     fn particle_filters_run_from_the_same_config_with_one_word_changed() {
         let dir = temp_dir("particles");
-        let world = short_world(&dir);
+        let world = short_world(dir.path());
         for (estimator, extra) in [("fastslam", "particles = 6"), ("ipslam", "particles = 6")] {
             let mut trajectories = Vec::new();
             for run in 0..2 {
-                let out = dir.join(format!("{estimator}-{run}"));
+                let out = dir.path().join(format!("{estimator}-{run}"));
                 let text = format!(
                     "[data]\nspec = \"world:{}\"\n[estimator]\ntype = \"{estimator}\"\n{extra}\n\
                      [output]\nplots = false\ndir = \"{}\"\n",
@@ -386,13 +388,12 @@ mod tests {
                 "{estimator}: same seed, same run"
             );
         }
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
     fn bad_configs_are_clear_errors() {
         let dir = temp_dir("bad");
-        let path = dir.join("bad.toml");
+        let path = dir.path().join("bad.toml");
         std::fs::write(
             &path,
             "[estimator]\ntype = \"ekf\"\ngate_probabilty = 0.9\n",
@@ -409,7 +410,6 @@ mod tests {
         };
         let error = run_config(&config, true).unwrap_err().to_string();
         assert!(error.contains("/no/such/file.rb2d"), "{error}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
@@ -420,17 +420,17 @@ mod tests {
         let world = Path::new(env!("CARGO_MANIFEST_DIR")).join("../worlds/rb2d-circle.toml");
         let mut config = Config::default();
         config.data.spec = format!("world:{}", world.display());
-        config.output.dir = dir.join("out");
+        config.output.dir = dir.path().join("out");
         config.output.plots = false;
         run_config(&config, true).unwrap();
-        let metrics: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("out/metrics.json")).unwrap())
-                .unwrap();
+        let metrics: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
+        )
+        .unwrap();
         let ate = metrics["ate_rmse_m"].as_f64().unwrap();
         let nees = metrics["nees"]["mean_per_dof"].as_f64().unwrap();
         assert!(ate < 0.034, "ATE {ate}");
         assert!(nees < 1.5, "pose NEES per dof {nees}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]
@@ -444,12 +444,12 @@ mod tests {
                 "[data]\nspec = \"world:{}\"\n[estimator]\ntype = \"ekf\"\nassociation = \"{association}\"\n\
                  confirm_after = 2\n[frontend]\nignore_landmark_ids = true\n[output]\nplots = false\ndir = \"{}\"\n",
                 world.display(),
-                dir.join("out").display()
+                dir.path().join("out").display()
             );
             let config = Config::from_toml(&text, "test").unwrap();
             run_config(&config, true).unwrap();
             let metrics: serde_json::Value = serde_json::from_str(
-                &std::fs::read_to_string(dir.join("out/metrics.json")).unwrap(),
+                &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
             )
             .unwrap();
             let ate = metrics["ate_rmse_m"].as_f64().unwrap();
@@ -459,7 +459,6 @@ mod tests {
                 (45..=56).contains(&points),
                 "{association}: {points} landmarks"
             );
-            std::fs::remove_dir_all(&dir).unwrap();
         }
     }
 }

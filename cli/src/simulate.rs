@@ -210,12 +210,11 @@ mod tests {
 
     #[test]
     fn the_circle_world_is_written_and_read_back() {
-        let out = std::env::temp_dir().join(format!("slam-cli-simulate-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&out);
+        let out = tempfile::tempdir().unwrap();
         let world = Path::new(env!("CARGO_MANIFEST_DIR")).join("../worlds/rb2d-circle.toml");
         let args = SimulateArgs {
             world: Some(world),
-            out: out.join("new-folder"),
+            out: out.path().join("new-folder"),
             seed: 3,
         };
         run(&args).unwrap();
@@ -232,14 +231,14 @@ mod tests {
         let text = std::fs::read_to_string(dir.join("truth_map.json")).unwrap();
         let map: TrueMap = serde_json::from_str(&text).unwrap();
         assert_eq!(map.landmarks.len(), 50);
-        std::fs::remove_dir_all(&out).unwrap();
     }
 
     #[test]
     fn a_bad_world_is_an_error_naming_the_file() {
+        let out = tempfile::tempdir().unwrap();
         let args = SimulateArgs {
             world: Some(PathBuf::from("no/such/world.toml")),
-            out: std::env::temp_dir().join("slam-cli-simulate-never"),
+            out: out.path().join("never"),
             seed: 1,
         };
         let e = run(&args).unwrap_err().to_string();

@@ -24,15 +24,12 @@ fn datasets() -> Option<PathBuf> {
     }
 }
 
-/// A fresh folder for one test's files.
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "slam-sensors-readers-{}-{name}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A fresh folder for one test's files, removed when dropped.
+fn temp_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("slam-sensors-readers-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 fn assert_time_ordered(data: &Dataset) {
@@ -205,7 +202,7 @@ const RB2D_HEADER: &str = "# test log\nPARAM dt 0.1\nPARAM sigma_v 0.05\nPARAM s
 #[test]
 fn rb2d_valid_log() {
     let dir = temp_dir("rb2d-valid");
-    let path = dir.join("valid.rb2d");
+    let path = dir.path().join("valid.rb2d");
     let body = "LM 0 3.0 0.0\nLM 1 0.0 3.0\n\
                 OBS 0 0 3.0 0.0\nGT 0 0 0 0\n\
                 ODOM 1 0.1 0.1 0.0 0.05\nOBS 1 0 2.9 0.0\nOBS 1 -1 3.0 1.6\nGT 1 0.1 0.0 0.05\n\
@@ -288,12 +285,12 @@ fn rb2d_malformed_lines() {
         ("PARAM speed 0.2\n", 8, "unknown parameter `speed`"),
     ];
     for (k, (body, line, reason)) in cases.iter().enumerate() {
-        let path = dir.join(format!("bad{k}.rb2d"));
+        let path = dir.path().join(format!("bad{k}.rb2d"));
         std::fs::write(&path, format!("{RB2D_HEADER}{body}")).unwrap();
         assert_error(read_rb2d(&path), &format!("bad{k}.rb2d:{line}:"), reason);
     }
     // A record before the parameter it needs.
-    let path = dir.join("early.rb2d");
+    let path = dir.path().join("early.rb2d");
     std::fs::write(&path, "PARAM dt 0.1\nLM 1 0 0\nODOM 1 0.1 0.1 0 0\n").unwrap();
     assert_error(
         read_rb2d(&path),
@@ -305,7 +302,7 @@ fn rb2d_malformed_lines() {
     std::fs::write(&path, "GT 0 0 0 0\n").unwrap();
     assert_error(read_rb2d(&path), "early.rb2d:1:", "GT needs PARAM dt");
     // Not there at all.
-    assert!(read_rb2d(&dir.join("absent.rb2d")).is_err());
+    assert!(read_rb2d(&dir.path().join("absent.rb2d")).is_err());
 }
 
 #[test]
@@ -335,7 +332,7 @@ fn carmen_malformed_lines() {
         ),
     ];
     for (k, (text, line, reason)) in cases.iter().enumerate() {
-        let path = dir.join(format!("bad{k}.log"));
+        let path = dir.path().join(format!("bad{k}.log"));
         std::fs::write(&path, text).unwrap();
         assert_error(
             read_carmen(&path, &CarmenOptions::default()),
@@ -346,7 +343,7 @@ fn carmen_malformed_lines() {
 }
 
 /// A minimal Victoria Park `converted/` folder with `file` replaced by `text`.
-fn victoria_dir(name: &str, file: &str, text: &str) -> PathBuf {
+fn victoria_dir(name: &str, file: &str, text: &str) -> tempfile::TempDir {
     let dir = temp_dir(name);
     let files = [
         (
@@ -361,7 +358,7 @@ fn victoria_dir(name: &str, file: &str, text: &str) -> PathBuf {
         ("gps.csv", "time_ms,Lo_m,La_m\n1000,0.0,0.0\n"),
     ];
     for (f, t) in files {
-        std::fs::write(dir.join(f), if f == file { text } else { t }).unwrap();
+        std::fs::write(dir.path().join(f), if f == file { text } else { t }).unwrap();
     }
     dir
 }
@@ -370,7 +367,7 @@ fn victoria_dir(name: &str, file: &str, text: &str) -> PathBuf {
 fn victoria_park_malformed_lines() {
     let ok = victoria_dir("vp-ok", "", "");
     assert_eq!(
-        read_victoria_park(&ok, &VictoriaParkOptions::default())
+        read_victoria_park(ok.path(), &VictoriaParkOptions::default())
             .unwrap()
             .counts()
             .observations,
@@ -417,58 +414,61 @@ fn victoria_park_malformed_lines() {
     for (k, (file, text, line, reason)) in cases.iter().enumerate() {
         let dir = victoria_dir(&format!("vp-bad{k}"), file, text);
         assert_error(
-            read_victoria_park(&dir, &VictoriaParkOptions::default()),
+            read_victoria_park(dir.path(), &VictoriaParkOptions::default()),
             &format!("{file}:{line}:"),
             reason,
         );
     }
-    assert!(read_victoria_park(&temp_dir("vp-empty"), &VictoriaParkOptions::default()).is_err());
+    assert!(
+        read_victoria_park(temp_dir("vp-empty").path(), &VictoriaParkOptions::default()).is_err()
+    );
 }
 
 #[test]
 fn mrclam_malformed_lines() {
     let dir = temp_dir("mrclam-bad");
     let header = "# h\n# h\n# h\n# h\n";
-    let write =
-        |file: &str, body: &str| std::fs::write(dir.join(file), format!("{header}{body}")).unwrap();
+    let write = |file: &str, body: &str| {
+        std::fs::write(dir.path().join(file), format!("{header}{body}")).unwrap()
+    };
     write("Barcodes.dat", "1 5\n6 72\n");
     write("Landmark_Groundtruth.dat", "6 1.0 2.0 0.001 0.001\n");
     write("Robot1_Odometry.dat", "10.0 0.1 0.0\n10.5 0.1 0.0\n");
     write("Robot1_Measurement.dat", "10.2 72 2.0 0.1\n");
     assert_eq!(
-        read_mrclam(&dir, 1, &MrclamOptions::default())
+        read_mrclam(dir.path(), 1, &MrclamOptions::default())
             .unwrap()
             .counts()
             .observations,
         1
     );
     assert!(matches!(
-        read_mrclam(&dir, 0, &MrclamOptions::default()),
+        read_mrclam(dir.path(), 0, &MrclamOptions::default()),
         Err(slam_sensors::SensorError::InvalidArgument(_))
     ));
     assert_error(
-        read_mrclam(&dir, 3, &MrclamOptions::default()),
+        read_mrclam(dir.path(), 3, &MrclamOptions::default()),
         "Robot3_Odometry.dat",
         "not found",
     );
 
     write("Robot1_Measurement.dat", "10.2 72 2.0 0.1\n10.3 72 2.0\n");
     assert_error(
-        read_mrclam(&dir, 1, &MrclamOptions::default()),
+        read_mrclam(dir.path(), 1, &MrclamOptions::default()),
         "Robot1_Measurement.dat:6:",
         "expected 4 fields, got 3",
     );
     write("Robot1_Measurement.dat", "10.2 72 2.0 0.1\n");
     write("Robot1_Odometry.dat", "10.0 0.1 0.0\n10.5 fast 0.0\n");
     assert_error(
-        read_mrclam(&dir, 1, &MrclamOptions::default()),
+        read_mrclam(dir.path(), 1, &MrclamOptions::default()),
         "Robot1_Odometry.dat:6:",
         "expected a number, got `fast`",
     );
     write("Robot1_Odometry.dat", "10.0 0.1 0.0\n");
     write("Landmark_Groundtruth.dat", "6 1.0 2.0 0.001\n");
     assert_error(
-        read_mrclam(&dir, 1, &MrclamOptions::default()),
+        read_mrclam(dir.path(), 1, &MrclamOptions::default()),
         "Landmark_Groundtruth.dat:5:",
         "expected 5 fields, got 4",
     );

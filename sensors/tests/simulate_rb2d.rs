@@ -52,9 +52,8 @@ fn the_circle_world_is_the_classic_benchmark() {
 fn its_rb2d_log_reads_back_as_the_same_unicycle_steps() {
     let world = circle_world();
     let run = simulate(&world, 7).unwrap();
-    let dir = std::env::temp_dir().join(format!("slam-simulate-rb2d-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("circle.rb2d");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("circle.rb2d");
     write_rb2d(&path, &run.dataset, &world.rb2d_params(), "test").unwrap();
     let text = std::fs::read_to_string(&path).unwrap();
     assert!(
@@ -92,5 +91,4 @@ fn its_rb2d_log_reads_back_as_the_same_unicycle_steps() {
         back.counts().observations,
         run.dataset.counts().observations
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -1,8 +1,6 @@
 //! The writers of simulated runs read back: rb2d (odometry increments, observations, truth)
 //! and CARMEN (scans, mounts, dead-reckoned poses).
 
-use std::path::PathBuf;
-
 use slam_core::Pose2;
 use slam_sensors::data::carmen::{CarmenOptions, read_carmen, write_carmen};
 use slam_sensors::data::rb2d::{read_rb2d, write_rb2d};
@@ -10,14 +8,12 @@ use slam_sensors::models::RangeBearing;
 use slam_sensors::sim::{LandmarkSpec, World, simulate};
 use slam_sensors::{Dataset, Event, LaserScan, TruthKind};
 
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "slam-simulate-writers-{}-{name}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A fresh folder for one test's files, removed when dropped.
+fn temp_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("slam-simulate-writers-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 /// The default world as far as the pillar room (its poles are range-bearing landmarks), with a
@@ -53,7 +49,8 @@ fn assert_same_pose(a: &Pose2, b: &Pose2, tolerance: f64) {
 fn rb2d_reads_back_the_simulated_odometry_observations_and_truth() {
     let world = short_world();
     let run = simulate(&world, 11).unwrap();
-    let path = temp_dir("rb2d").join("run.rb2d");
+    let dir = temp_dir("rb2d");
+    let path = dir.path().join("run.rb2d");
     write_rb2d(&path, &run.dataset, &world.rb2d_params(), "test").unwrap();
     let back = read_rb2d(&path).unwrap();
 
@@ -114,7 +111,8 @@ fn carmen_reads_back_the_scans_mounts_and_dead_reckoning() {
     let world = short_world();
     let laser = world.laser.clone().unwrap();
     let run = simulate(&world, 12).unwrap();
-    let path = temp_dir("carmen").join("run.carmen.log");
+    let dir = temp_dir("carmen");
+    let path = dir.path().join("run.carmen.log");
     write_carmen(&path, &run.dataset, &world.start_pose(), "test").unwrap();
     let back = read_carmen(&path, &CarmenOptions::default()).unwrap();
 

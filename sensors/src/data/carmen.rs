@@ -101,7 +101,8 @@ enum Record {
 ///
 /// ```
 /// use slam_sensors::data::{CarmenOptions, read_carmen};
-/// let path = std::env::temp_dir().join(format!("carmen-doc-{}.log", std::process::id()));
+/// let dir = tempfile::tempdir().unwrap();
+/// let path = dir.path().join("carmen-doc.log");
 /// std::fs::write(&path, "# a comment\n\
 ///     ODOM 0 0 0 0 0 0 1.0 host 1.0\n\
 ///     FLASER 3 1.0 2.0 5.0 0.1 0 0 0.1 0 0 1.5 host 1.5\n\
@@ -111,7 +112,6 @@ enum Record {
 /// assert_eq!((counts.scans, counts.ground_truth, counts.motion), (1, 1, 1));
 /// assert_eq!(data.skipped["#"], 1);
 /// assert_eq!(data.events[0].time, 3.0); // the FLASER line
-/// # std::fs::remove_file(&path).unwrap();
 /// ```
 pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<Dataset> {
     check_options(options)?;
@@ -385,12 +385,12 @@ pub fn carmen_text(dataset: &Dataset, start: &Pose2, comment: &str) -> Result<St
 /// let mut data = Dataset::new("tiny", Clock::Seconds);
 /// let scan = LaserScan::new(-1.0, 1.0, vec![2.0, 3.5, 8.0], 0.0, 8.0).unwrap();
 /// data.push(0.0, Event::Scan { scan: scan.clone(), robot_from_sensor: Pose3::identity() });
-/// let path = std::env::temp_dir().join(format!("carmen-write-doc-{}.log", std::process::id()));
+/// let dir = tempfile::tempdir().unwrap();
+/// let path = dir.path().join("carmen-write-doc.log");
 /// write_carmen(&path, &data, &Pose2::new(1.0, 2.0, 0.5), "a test").unwrap();
 /// let back = read_carmen(&path, &CarmenOptions::default()).unwrap();
 /// let Event::Scan { scan: read, .. } = &back.events[0].event else { panic!() };
 /// assert_eq!((read.ranges.clone(), read.max_range), (scan.ranges, 8.0));
-/// # std::fs::remove_file(&path).unwrap();
 /// ```
 pub fn write_carmen(path: &Path, dataset: &Dataset, start: &Pose2, comment: &str) -> Result<()> {
     write_atomically(path, carmen_text(dataset, start, comment)?.as_bytes())
@@ -469,7 +469,7 @@ mod tests {
 
     fn read(name: &str, text: &str, options: &CarmenOptions) -> Result<Dataset> {
         let dir = super::super::test_dir(&format!("carmen-{name}"));
-        let path = dir.join(format!("{name}.log"));
+        let path = dir.path().join(format!("{name}.log"));
         std::fs::write(&path, text).unwrap();
         read_carmen(&path, options)
     }

@@ -311,13 +311,13 @@ pub(crate) fn merge_by_time<C>(
     Ok(())
 }
 
-/// A fresh, empty folder under the system temp dir for one test.
+/// A fresh, empty folder under the system temp dir for one test, removed when dropped.
 #[cfg(test)]
-pub(crate) fn test_dir(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("slam-sensors-unit-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+pub(crate) fn test_dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("slam-sensors-unit-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 #[cfg(test)]
@@ -422,12 +422,12 @@ mod tests {
     fn gzip_is_detected() {
         use std::io::Write;
         let dir = test_dir("gzip");
-        let path = dir.join("a.gz");
+        let path = dir.path().join("a.gz");
         let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
         encoder.write_all(b"hello\nworld\n").unwrap();
         std::fs::write(&path, encoder.finish().unwrap()).unwrap();
         assert_eq!(read_text(&path).unwrap(), "hello\nworld\n");
-        std::fs::write(dir.join("b"), b"plain").unwrap();
-        assert_eq!(read_text(&dir.join("b")).unwrap(), "plain");
+        std::fs::write(dir.path().join("b"), b"plain").unwrap();
+        assert_eq!(read_text(&dir.path().join("b")).unwrap(), "plain");
     }
 }

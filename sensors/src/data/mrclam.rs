@@ -303,7 +303,7 @@ mod tests {
 
     const HEADER: &str = "# UTIAS\n# produced by\n# Format:\n# columns\n";
 
-    fn write_dir(name: &str, replace: &[(&str, &str)]) -> std::path::PathBuf {
+    fn write_dir(name: &str, replace: &[(&str, &str)]) -> tempfile::TempDir {
         let dir = super::super::test_dir(&format!("mrclam-{name}"));
         let files = [
             (
@@ -328,7 +328,7 @@ mod tests {
                 .iter()
                 .find(|(f, _)| *f == file)
                 .map_or(body, |(_, b)| b);
-            std::fs::write(dir.join(file), format!("{HEADER}{body}")).unwrap();
+            std::fs::write(dir.path().join(file), format!("{HEADER}{body}")).unwrap();
         }
         dir
     }
@@ -336,7 +336,7 @@ mod tests {
     #[test]
     fn groups_and_splits() {
         let dir = write_dir("ok", &[]);
-        let data = read_mrclam(&dir, 1, &MrclamOptions::default()).unwrap();
+        let data = read_mrclam(dir.path(), 1, &MrclamOptions::default()).unwrap();
         assert_eq!(data.landmarks.len(), 2);
         let trace: Vec<(f64, usize)> = data
             .events
@@ -370,8 +370,13 @@ mod tests {
 
     #[test]
     fn bad_input_is_an_error_naming_file_and_line() {
-        assert!(read_mrclam(&write_dir("robot", &[]), 6, &MrclamOptions::default()).is_err());
-        let e = read_mrclam(&write_dir("missing", &[]), 2, &MrclamOptions::default()).unwrap_err();
+        assert!(read_mrclam(write_dir("robot", &[]).path(), 6, &MrclamOptions::default()).is_err());
+        let e = read_mrclam(
+            write_dir("missing", &[]).path(),
+            2,
+            &MrclamOptions::default(),
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("Robot2_Odometry.dat"), "{e}");
         let cases = [
             (
@@ -412,7 +417,7 @@ mod tests {
         ];
         for (k, (file, body, expected)) in cases.iter().enumerate() {
             let dir = write_dir(&format!("bad{k}"), &[(file, body)]);
-            let e = read_mrclam(&dir, 1, &MrclamOptions::default())
+            let e = read_mrclam(dir.path(), 1, &MrclamOptions::default())
                 .unwrap_err()
                 .to_string();
             assert!(e.contains(expected), "{e} vs {expected}");

@@ -100,7 +100,8 @@ struct State {
 /// ```
 /// use slam_sensors::data::read_rb2d;
 /// use slam_sensors::{Event, TruthKind};
-/// let path = std::env::temp_dir().join(format!("rb2d-doc-{}.txt", std::process::id()));
+/// let dir = tempfile::tempdir().unwrap();
+/// let path = dir.path().join("rb2d-doc.txt");
 /// std::fs::write(&path, "# a tiny log\n\
 ///     PARAM dt 0.1\nPARAM sigma_v 0.05\nPARAM sigma_w 0.01\nPARAM sigma_r 0.1\nPARAM sigma_b 0.02\n\
 ///     LM 3 5.0 0.0\n\
@@ -115,7 +116,6 @@ struct State {
 /// let last = data.events.last().unwrap();
 /// assert!((last.time - 0.1).abs() < 1e-12);
 /// assert!(matches!(last.event, Event::GroundTruth { kind: TruthKind::True, .. }));
-/// # std::fs::remove_file(&path).unwrap();
 /// ```
 pub fn read_rb2d(path: &Path) -> Result<Dataset> {
     let text = read_text(path)?;
@@ -446,12 +446,12 @@ pub fn rb2d_text(dataset: &Dataset, params: &Rb2dParams, comment: &str) -> Resul
 /// let step = Unicycle::new(1.0, 0.5, 0.1, 0.1, 0.03, Integration::Euler).unwrap();
 /// data.push(0.1, Event::Motion(Box::new(step)));
 /// let params = Rb2dParams { dt: 0.1, sigma_v: 0.1, sigma_w: 0.03, sigma_r: None, sigma_b: None, max_range: None };
-/// let path = std::env::temp_dir().join(format!("rb2d-write-doc-{}.txt", std::process::id()));
+/// let dir = tempfile::tempdir().unwrap();
+/// let path = dir.path().join("rb2d-write-doc.txt");
 /// write_rb2d(&path, &data, &params, "one step").unwrap();
 /// let text = std::fs::read_to_string(&path).unwrap();
 /// assert!(text.contains("ODOM 1 0.1 0.1 0 0.05"), "{text}");
 /// assert_eq!(read_rb2d(&path).unwrap().counts().motion, 1);
-/// # std::fs::remove_file(&path).unwrap();
 /// ```
 pub fn write_rb2d(
     path: &Path,

@@ -29,12 +29,12 @@ pub struct StampedPose {
 /// ```
 /// use slam_sensors::data::tum::{read_tum, write_tum, StampedPose};
 /// use slam_core::{Pose2, Pose3};
-/// let path = std::env::temp_dir().join(format!("tum-doc-{}.txt", std::process::id()));
+/// let dir = tempfile::tempdir().unwrap();
+/// let path = dir.path().join("tum-doc.txt");
 /// let poses = vec![StampedPose { time: 0.5, pose: Pose2::new(1.0, 2.0, 0.3).to_pose3(0.0) }];
 /// write_tum(&path, &poses).unwrap();
 /// let back = read_tum(&path).unwrap();
 /// assert!((back[0].pose.yaw - 0.3).abs() < 1e-8 && back[0].time == 0.5);
-/// # std::fs::remove_file(&path).unwrap();
 /// ```
 pub fn read_tum(path: &Path) -> Result<Vec<StampedPose>> {
     let text = read_text(path)?;
@@ -109,7 +109,7 @@ mod tests {
     #[test]
     fn round_trip_keeps_poses() {
         let dir = test_dir("tum-round-trip");
-        let path = dir.join("t.tum");
+        let path = dir.path().join("t.tum");
         let poses: Vec<_> = (0..20)
             .map(|k| StampedPose {
                 time: k as f64 * 0.1,
@@ -136,7 +136,7 @@ mod tests {
             ("0 1 2 3 0 0 0 2\n", "norm"),
         ];
         for (k, (text, reason)) in cases.iter().enumerate() {
-            let path = dir.join(format!("bad{k}.tum"));
+            let path = dir.path().join(format!("bad{k}.tum"));
             std::fs::write(&path, text).unwrap();
             let error = read_tum(&path).unwrap_err().to_string();
             let line = text.lines().count();
@@ -150,12 +150,12 @@ mod tests {
     #[test]
     fn atomic_write_leaves_no_partial_file() {
         let dir = test_dir("tum-atomic");
-        let missing_folder = dir.join("no-such-folder").join("t.tum");
+        let missing_folder = dir.path().join("no-such-folder").join("t.tum");
         assert!(write_tum(&missing_folder, &[]).is_err());
         assert!(!missing_folder.exists());
-        let path = dir.join("ok.tum");
+        let path = dir.path().join("ok.tum");
         write_tum(&path, &[]).unwrap();
-        let names: Vec<_> = std::fs::read_dir(&dir)
+        let names: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
             .map(|e| e.unwrap().file_name())
             .collect();

@@ -265,9 +265,9 @@ fn read_gps(path: &Path) -> Result<Vec<(f64, Vector2<f64>)>> {
 mod tests {
     use super::*;
 
-    fn write_dir(name: &str, files: &[(&str, &str)]) -> PathBuf {
+    fn write_dir(name: &str, files: &[(&str, &str)]) -> tempfile::TempDir {
         let dir = super::super::test_dir(&format!("vp-{name}"));
-        std::fs::create_dir_all(dir.join("converted")).unwrap();
+        std::fs::create_dir_all(dir.path().join("converted")).unwrap();
         let defaults = [
             (
                 ODOMETRY.0,
@@ -285,7 +285,7 @@ mod tests {
                 .iter()
                 .find(|(f, _)| *f == file)
                 .map_or(text, |(_, t)| t);
-            std::fs::write(dir.join("converted").join(file), text).unwrap();
+            std::fs::write(dir.path().join("converted").join(file), text).unwrap();
         }
         dir
     }
@@ -293,7 +293,7 @@ mod tests {
     #[test]
     fn frames_split_the_odometry() {
         let dir = write_dir("split", &[]);
-        let data = read_victoria_park(&dir, &VictoriaParkOptions::default()).unwrap();
+        let data = read_victoria_park(dir.path(), &VictoriaParkOptions::default()).unwrap();
         let kinds: Vec<(f64, &str)> = data
             .events
             .iter()
@@ -327,7 +327,11 @@ mod tests {
         );
         // The converted/ folder itself is accepted too.
         assert!(
-            read_victoria_park(&dir.join("converted"), &VictoriaParkOptions::default()).is_ok()
+            read_victoria_park(
+                &dir.path().join("converted"),
+                &VictoriaParkOptions::default()
+            )
+            .is_ok()
         );
     }
 
@@ -382,7 +386,7 @@ mod tests {
         ];
         for (k, (file, text, expected)) in cases.iter().enumerate() {
             let dir = write_dir(&format!("bad{k}"), &[(file, text)]);
-            let e = read_victoria_park(&dir, &VictoriaParkOptions::default())
+            let e = read_victoria_park(dir.path(), &VictoriaParkOptions::default())
                 .unwrap_err()
                 .to_string();
             assert!(e.contains(expected), "{e} vs {expected}");

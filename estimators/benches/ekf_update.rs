@@ -26,65 +26,28 @@ use criterion::{BenchmarkId, Criterion, SamplingMode, criterion_group, criterion
 use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::{Accum, Par};
 use slam_core::nalgebra::DMatrix;
-use slam_core::{Estimator, Feature, Observation, Pose2, Pose3, downcast_feature};
+use slam_core::{Estimator, Feature, Observation, Pose2, downcast_feature};
 use slam_estimators::{Ekf, EkfParams};
 use slam_features::Point;
-use slam_sensors::models::RangeBearing;
-use slam_sensors::odometry::{Integration, Unicycle};
+use slam_sensors::odometry::Unicycle;
+
+mod common;
+use common::{PER_UPDATE, build_batches, noise};
 
 /// Map sizes of the main group.
 const SIZES: [usize; 6] = [50, 100, 200, 500, 1000, 2000];
 /// Map sizes of the group without the observability constraint.
 const SIZES_NO_OC: [usize; 2] = [500, 2000];
-/// Observations per timed update.
-const PER_UPDATE: usize = 16;
-/// Observations per update while the filter is built.
-const BUILD_BATCH: usize = 100;
-/// Measurement noise: range (m) and bearing (rad).
-const SIGMA_RANGE: f64 = 0.1;
-const SIGMA_BEARING_DEG: f64 = 1.0;
-
-/// A deterministic uniform number in `[-1, 1)` (splitmix64), for reproducible noise.
-fn noise(seed: u64) -> f64 {
-    let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-}
-
-/// Landmark `i` of `n`: a golden-angle spiral around the robot (at the origin), ranges
-/// from 2 m to 20 m, returned as the measured range and bearing.
-fn landmark(i: usize, n: usize) -> (f64, f64) {
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    let range = 2.0 + 18.0 * ((i as f64 + 0.5) / n as f64).sqrt();
-    (range, i as f64 * golden)
-}
 
 /// One observation of landmark `i` of `n`, with small deterministic noise (`draw` varies it).
 fn observation(i: usize, n: usize, draw: u64) -> Observation {
-    let (range, bearing) = landmark(i, n);
-    let sigma_bearing = SIGMA_BEARING_DEG.to_radians();
-    let seed = (i as u64) << 8 | draw;
-    let measurement = RangeBearing::new(
-        range + 0.5 * SIGMA_RANGE * noise(2 * seed),
-        bearing + 0.5 * sigma_bearing * noise(2 * seed + 1),
-        SIGMA_RANGE,
-        sigma_bearing,
-    )
-    .expect("a valid range-bearing measurement");
-    Observation {
-        robot_from_sensor: Pose3::identity(),
-        measurement: Box::new(measurement),
-        landmark_id: Some(i as u64),
-    }
+    common::observation(i, n, draw, 0.5, Some(i as u64))
 }
 
 /// The odometry of a robot standing still for 0.1 s: the pose does not move (so the
 /// measurements stay valid), the pose covariance grows.
 fn still() -> Unicycle {
-    Unicycle::new(0.0, 0.0, 0.1, 0.05, 2f64.to_radians(), Integration::Arc)
-        .expect("a valid unicycle")
+    common::still(0.05, 2f64.to_radians())
 }
 
 /// A filter with `n` landmarks and a dense covariance (`3 + 2n` rows).
@@ -92,10 +55,7 @@ fn prepared_filter(n: usize, params: EkfParams) -> Ekf<Pose2> {
     let mut ekf = Ekf::new(Pose2::identity(), DMatrix::zeros(3, 3), params).expect("a filter");
     let motion = still();
     for pass in 0..2u64 {
-        for start in (0..n).step_by(BUILD_BATCH) {
-            let batch: Vec<Observation> = (start..(start + BUILD_BATCH).min(n))
-                .map(|i| observation(i, n, 100 + pass))
-                .collect();
+        for batch in build_batches(n, pass, |i, draw| observation(i, n, draw)) {
             ekf.predict(&motion).expect("prediction");
             let report = ekf.update(&batch).expect("update");
             assert_eq!(report.rejected, 0, "n = {n}: {report:?}");
@@ -119,13 +79,7 @@ fn prepared_filter(n: usize, params: EkfParams) -> Ekf<Pose2> {
 /// The timed steps: `ceil(n / 16)` updates of 16 distinct landmarks each, cycling through
 /// the map (with wrap-around when 16 does not divide `n`).
 fn steps(n: usize) -> Vec<Vec<Observation>> {
-    (0..n.div_ceil(PER_UPDATE))
-        .map(|g| {
-            (0..PER_UPDATE)
-                .map(|j| observation((g * PER_UPDATE + j) % n, n, j as u64))
-                .collect()
-        })
-        .collect()
+    common::steps(n, |i, draw| observation(i, n, draw))
 }
 
 /// A prepared filter with one untimed step checked: all 16 observations are used.

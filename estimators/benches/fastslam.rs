@@ -18,10 +18,12 @@ use std::time::Duration;
 
 use criterion::{BenchmarkId, Criterion, SamplingMode, criterion_group, criterion_main};
 use slam_core::nalgebra::DMatrix;
-use slam_core::{Estimator, Observation, Pose2, Pose3};
+use slam_core::{Estimator, Observation, Pose2};
 use slam_estimators::{FastSlam, FastSlamParams};
-use slam_sensors::models::RangeBearing;
-use slam_sensors::odometry::{Integration, Unicycle};
+use slam_sensors::odometry::Unicycle;
+
+mod common;
+use common::{build_batches, steps};
 
 /// (particles, landmarks) of the timed cases.
 const CASES: [(usize, usize); 7] = [
@@ -33,45 +35,16 @@ const CASES: [(usize, usize); 7] = [
     (100, 1600),
     (1000, 1600),
 ];
-/// Observations per timed update.
-const PER_UPDATE: usize = 16;
-const SIGMA_RANGE: f64 = 0.1;
-const SIGMA_BEARING_DEG: f64 = 1.0;
 
-/// A deterministic uniform number in `[-1, 1)` (splitmix64), for reproducible noise.
-fn noise(seed: u64) -> f64 {
-    let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-}
-
-/// One observation of landmark `i` of `n` (spiral, ranges 2 m to 20 m).
+/// One observation of landmark `i` of `n` (spiral, ranges 2 m to 20 m), with its id if
+/// `known`.
 fn observation(i: usize, n: usize, draw: u64, known: bool) -> Observation {
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    let range = 2.0 + 18.0 * ((i as f64 + 0.5) / n as f64).sqrt();
-    let bearing = i as f64 * golden;
-    let sigma_bearing = SIGMA_BEARING_DEG.to_radians();
-    let seed = (i as u64) << 8 | draw;
-    let measurement = RangeBearing::new(
-        range + 0.3 * SIGMA_RANGE * noise(2 * seed),
-        bearing + 0.3 * sigma_bearing * noise(2 * seed + 1),
-        SIGMA_RANGE,
-        sigma_bearing,
-    )
-    .expect("a valid range-bearing measurement");
-    Observation {
-        robot_from_sensor: Pose3::identity(),
-        measurement: Box::new(measurement),
-        landmark_id: known.then_some(i as u64),
-    }
+    common::observation(i, n, draw, 0.3, known.then_some(i as u64))
 }
 
 /// A robot standing still for 0.1 s with small noise.
 fn still() -> Unicycle {
-    Unicycle::new(0.0, 0.0, 0.1, 0.002, 0.05f64.to_radians(), Integration::Arc)
-        .expect("a valid unicycle")
+    common::still(0.002, 0.05f64.to_radians())
 }
 
 fn prepared(particles: usize, n: usize) -> FastSlam<Pose2> {
@@ -83,10 +56,7 @@ fn prepared(particles: usize, n: usize) -> FastSlam<Pose2> {
     let mut filter =
         FastSlam::new(Pose2::identity(), DMatrix::zeros(3, 3), params).expect("a filter");
     for pass in 0..2u64 {
-        for start in (0..n).step_by(100) {
-            let batch: Vec<Observation> = (start..(start + 100).min(n))
-                .map(|i| observation(i, n, 100 + pass, true))
-                .collect();
+        for batch in build_batches(n, pass, |i, draw| observation(i, n, draw, true)) {
             filter.predict(&still()).expect("prediction");
             filter.update(&batch).expect("update");
         }
@@ -103,13 +73,7 @@ fn bench(c: &mut Criterion) {
     for (particles, n) in CASES {
         let mut filter = prepared(particles, n);
         for known in [true, false] {
-            let steps: Vec<Vec<Observation>> = (0..n.div_ceil(PER_UPDATE))
-                .map(|g| {
-                    (0..PER_UPDATE)
-                        .map(|j| observation((g * PER_UPDATE + j) % n, n, j as u64, known))
-                        .collect()
-                })
-                .collect();
+            let steps = steps(n, |i, draw| observation(i, n, draw, known));
             let name = if known { "known" } else { "nearest" };
             let mut k = 0;
             group.bench_function(BenchmarkId::new(name, format!("{particles}p-{n}lm")), |b| {

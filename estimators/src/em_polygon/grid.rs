@@ -253,14 +253,7 @@ impl PointGrid {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn seg(a: (f64, f64), b: (f64, f64)) -> Segment {
-        Segment {
-            start: Vector2::new(a.0, a.1),
-            end: Vector2::new(b.0, b.1),
-            support: 0,
-        }
-    }
+    use crate::em_polygon::seg;
 
     #[test]
     fn grid_candidates_equal_brute_force() {

@@ -142,14 +142,7 @@ pub(crate) fn merge_all(segments: Vec<Segment>, scales: &MergeScales) -> (Vec<Se
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn seg(a: (f64, f64), b: (f64, f64)) -> Segment {
-        Segment {
-            start: Vector2::new(a.0, a.1),
-            end: Vector2::new(b.0, b.1),
-            support: 0,
-        }
-    }
+    use crate::em_polygon::seg;
 
     const SCALES: MergeScales = MergeScales {
         angle: 0.35,

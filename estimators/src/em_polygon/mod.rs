@@ -531,5 +531,11 @@ pub fn fit_polygons_from(
     Ok(result)
 }
 
+/// A segment from `a` to `b` given as `(x, y)` pairs, for the tests of the submodules.
+#[cfg(test)]
+fn seg(a: (f64, f64), b: (f64, f64)) -> Segment {
+    Segment::new(Vector2::new(a.0, a.1), Vector2::new(b.0, b.1))
+}
+
 #[cfg(test)]
 mod tests;

@@ -135,14 +135,7 @@ pub(crate) fn order(segments: &mut [Segment], join: f64) -> Vec<Polyline> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn seg(a: (f64, f64), b: (f64, f64)) -> Segment {
-        Segment {
-            start: Vector2::new(a.0, a.1),
-            end: Vector2::new(b.0, b.1),
-            support: 0,
-        }
-    }
+    use crate::em_polygon::seg;
 
     #[test]
     fn a_square_is_one_closed_polyline_and_a_lone_segment_another() {

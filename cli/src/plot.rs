@@ -499,11 +499,20 @@ impl LineChart {
         if text {
             builder.caption(&self.title, ("sans-serif", 20));
         }
+        let (y_lo, y_hi) = (y0 * 0.8, y1 * 1.25);
+        let (labelled, light) = log_axis_ticks(y_lo, y_hi);
         let mut chart = builder
-            .build_cartesian_2d(x0..x1, (y0 * 0.8..y1 * 1.25).log_scale())
+            .build_cartesian_2d(
+                x0..x1,
+                (y_lo..y_hi)
+                    .log_scale()
+                    .with_key_points(labelled)
+                    .with_light_points(light),
+            )
             .map_err(e)?;
         let mut mesh = chart.configure_mesh();
-        mesh.light_line_style(RGBColor(235, 235, 235));
+        mesh.light_line_style(RGBColor(235, 235, 235))
+            .y_label_formatter(&|v| tick_label(*v));
         if text {
             mesh.x_desc(self.x_label.as_str())
                 .y_desc(self.y_label.as_str());
@@ -547,5 +556,157 @@ impl LineChart {
                 .map_err(e)?;
         }
         root.present().map_err(e)
+    }
+}
+
+/// Fewest labelled ticks on a logarithmic axis.
+const MIN_LOG_LABELS: usize = 3;
+/// Most labelled powers of ten on a logarithmic axis; beyond, every k-th is labelled.
+const MAX_LOG_LABELS: usize = 12;
+
+/// The ticks of a logarithmic axis over `lo..=hi` (`0 < lo < hi`): `(labelled, light)`.
+///
+/// The labelled ticks are the powers of ten when at least three fall in the range (only
+/// every k-th of them when there are more than twelve), else 1, 2 and 5 times the powers of
+/// ten, else every digit times the powers of ten, else evenly spaced round values (for a
+/// range narrower than about a factor of two), so that the axis always has several labels.
+/// The light ticks (grid lines without labels) are the next finer set.
+pub(crate) fn log_axis_ticks(lo: f64, hi: f64) -> (Vec<f64>, Vec<f64>) {
+    if !(lo > 0.0 && lo < hi && hi.is_finite()) {
+        return (Vec::new(), Vec::new());
+    }
+    let digits = decade_ticks(lo, hi, &[1, 2, 3, 4, 5, 6, 7, 8, 9]);
+    let fine_linear = || linear_ticks(lo, hi, 5 * MIN_LOG_LABELS + 5);
+    let decades = decade_ticks(lo, hi, &[1]);
+    if decades.len() >= MIN_LOG_LABELS {
+        if decades.len() <= MAX_LOG_LABELS {
+            return (decades, digits);
+        }
+        let every = decades.len().div_ceil(MAX_LOG_LABELS) as i32;
+        let (labelled, light) = decades
+            .into_iter()
+            .partition(|v| (v.log10().round() as i32).rem_euclid(every) == 0);
+        return (labelled, light);
+    }
+    let one_two_five = decade_ticks(lo, hi, &[1, 2, 5]);
+    if one_two_five.len() >= MIN_LOG_LABELS {
+        return (one_two_five, digits);
+    }
+    if digits.len() >= MIN_LOG_LABELS {
+        return (digits, fine_linear());
+    }
+    (linear_ticks(lo, hi, MIN_LOG_LABELS + 1), fine_linear())
+}
+
+/// `n` times ten to the `exponent`, rounded once: the same number as the literal `{n}e{exponent}`
+/// (so that `decimal(3, -1)` is `0.3`, not `3.0 * 0.1`, and its label reads `0.3`).
+fn decimal(n: i64, exponent: i32) -> f64 {
+    format!("{n}e{exponent}")
+        .parse()
+        .expect("an integer and an exponent make a number")
+}
+
+/// Each of `mantissas` times every power of ten, within `lo..=hi`, in increasing order.
+fn decade_ticks(lo: f64, hi: f64, mantissas: &[i64]) -> Vec<f64> {
+    let first = lo.log10().floor() as i32 - 1;
+    let last = hi.log10().ceil() as i32;
+    (first..=last)
+        .flat_map(|exponent| mantissas.iter().map(move |&m| decimal(m, exponent)))
+        .filter(|v| (lo..=hi).contains(v))
+        .collect()
+}
+
+/// At least `count` evenly spaced ticks within `lo..=hi`, at multiples of a round step (1,
+/// 2 or 5 times a power of ten).
+fn linear_ticks(lo: f64, hi: f64, count: usize) -> Vec<f64> {
+    // Slightly more than the exact spacing, so that a round spacing computed as 4.999..
+    // times a power of ten counts as 5.
+    let raw = (hi - lo) / count as f64 * (1.0 + 1e-9);
+    let exponent = raw.log10().floor() as i32;
+    let mantissa = raw / decimal(1, exponent);
+    let m: i64 = if mantissa >= 5.0 {
+        5
+    } else if mantissa >= 2.0 {
+        2
+    } else {
+        1
+    };
+    let step = decimal(m, exponent);
+    let first = (lo / step).floor() as i64;
+    let last = (hi / step).ceil() as i64;
+    (first..=last)
+        .map(|k| decimal(k * m, exponent))
+        .filter(|v| (lo..=hi).contains(v))
+        .collect()
+}
+
+/// The label of an axis tick: plain decimals from 0.001 to 99999, else scientific notation.
+fn tick_label(value: f64) -> String {
+    if value == 0.0 || (1e-3..1e5).contains(&value.abs()) {
+        format!("{value}")
+    } else {
+        format!("{value:e}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn log_axes_always_have_several_labels() {
+        for (lo, hi) in [
+            (1.1, 1.3),
+            (1.76, 4.875),
+            (0.5, 0.55),
+            (1e-6, 1.2e-6),
+            (1000.0, 1001.0),
+            (2.9, 3.1),
+            (0.8, 5.0),
+            (0.9, 95.0),
+            (0.01, 1e3),
+            (1e-3, 1e20),
+            (3e-300, 1e300),
+        ] {
+            let (labelled, light) = log_axis_ticks(lo, hi);
+            assert!(
+                (MIN_LOG_LABELS..=MAX_LOG_LABELS).contains(&labelled.len()),
+                "{lo}..{hi}: {labelled:?}"
+            );
+            for ticks in [&labelled, &light] {
+                assert!(ticks.iter().all(|v| (lo..=hi).contains(v)), "{ticks:?}");
+                assert!(ticks.windows(2).all(|w| w[0] < w[1]), "{ticks:?}");
+            }
+            let labels: Vec<String> = labelled.iter().map(|&v| tick_label(v)).collect();
+            assert!(labels.windows(2).all(|w| w[0] != w[1]), "{labels:?}");
+            assert!(labels.iter().all(|l| l.len() <= 8), "{labels:?}");
+        }
+    }
+
+    #[test]
+    fn log_ticks_prefer_decades_then_one_two_five_then_digits_then_linear() {
+        assert_eq!(log_axis_ticks(0.5, 500.0).0, [1.0, 10.0, 100.0]);
+        assert_eq!(log_axis_ticks(0.8, 5.0).0, [1.0, 2.0, 5.0]);
+        // The NEES chart of a consistent filter: the 95% band of a 3-dof mean, less than a
+        // decade, had no label at all before.
+        let (labelled, light) = log_axis_ticks(1.76, 4.875);
+        assert_eq!(labelled, [2.0, 3.0, 4.0]);
+        assert!(light.len() > labelled.len());
+        let labels: Vec<String> = log_axis_ticks(1.1, 1.3)
+            .0
+            .iter()
+            .map(|&v| tick_label(v))
+            .collect();
+        assert_eq!(labels, ["1.1", "1.15", "1.2", "1.25", "1.3"]);
+        assert_eq!(
+            log_axis_ticks(0.25, 0.4).0,
+            [0.26, 0.28, 0.3, 0.32, 0.34, 0.36, 0.38, 0.4]
+        );
+        let wide = log_axis_ticks(1e-3, 1e20).0;
+        assert_eq!(wide.first(), Some(&1e-2));
+        assert!(wide.iter().all(|v| (v.log10().round() as i32) % 2 == 0));
+        assert!(log_axis_ticks(2.0, 1.0).0.is_empty());
+        assert_eq!(tick_label(1e-5), "1e-5");
+        assert_eq!(tick_label(0.3), "0.3");
     }
 }

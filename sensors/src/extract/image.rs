@@ -26,6 +26,11 @@ pub struct ImageExtractorParams {
     /// Lines whose two ends lie within this distance of the same image edge are dropped: a
     /// lamp or strip cut by the edge leaves such a sliver, which is not a line, px.
     pub border_margin: f64,
+    /// Deviation of the error that pixel quantization leaves in a line's position, shared by
+    /// all its pixels (a strip aligned with the pixel grid keeps it along its whole length),
+    /// px. It adds `2 q^2 / L^2` to the normal angle's variance and `q^2` to the shift's, for
+    /// a line of `L` px.
+    pub quantization_px: f64,
 }
 
 impl Default for ImageExtractorParams {
@@ -38,6 +43,7 @@ impl Default for ImageExtractorParams {
             min_line_length: 15.0,
             sigma_px: 0.7,
             border_margin: 4.0,
+            quantization_px: 0.1,
         }
     }
 }
@@ -116,7 +122,8 @@ pub fn extract_image_features(
             if let Some(line) = moments.line(&component, image, camera, params) {
                 features.lines.push(line);
             }
-        } else if elongation <= params.max_lamp_elongation {
+        } else if elongation <= params.max_lamp_elongation && !touches_border(image, &component) {
+            // A lamp cut by the image border has its centroid pulled inwards.
             features.lamps.push(ImageBlob {
                 centre: moments.centre,
                 area: component.len(),
@@ -218,9 +225,7 @@ impl Moments {
         if along_one_edge(&ends, image, params.border_margin) {
             return None;
         }
-        let clipped = pixels.iter().any(|&(x, y)| {
-            x == 0 || y == 0 || x + 1 == image.width as i64 || y + 1 == image.height as i64
-        });
+        let clipped = touches_border(image, pixels);
         // Normal-form covariance for pixels spread evenly over `length` with deviation sigma
         // across the line (one effective point per pixel of length), in normalized units:
         // a rotation about the centre (var 12 sigma^2 / (n L^2)) and a shift across
@@ -228,8 +233,11 @@ impl Moments {
         let n_eff = length.max(2.0);
         let f = 0.5 * (camera.fx + camera.fy);
         let sigma = params.sigma_px / f;
-        let var_theta = 12.0 * sigma * sigma / (n_eff * (length / f).powi(2));
-        let var_shift = sigma * sigma / n_eff;
+        let q = params.quantization_px / f;
+        let length_normalized = length / f;
+        let var_theta = 12.0 * sigma * sigma / (n_eff * length_normalized.powi(2))
+            + 2.0 * q * q / length_normalized.powi(2);
+        let var_shift = sigma * sigma / n_eff + q * q;
         let (a, b) = (camera.normalized(&ends[0]), camera.normalized(&ends[1]));
         let u = (b - a).normalize();
         let mut normal = Vector2::new(-u.y, u.x);
@@ -245,6 +253,13 @@ impl Moments {
         );
         Some(ImageLine { ends, cov, clipped })
     }
+}
+
+/// Whether any of `pixels` lies on the border of `image`.
+fn touches_border(image: &GrayImage, pixels: &[(i64, i64)]) -> bool {
+    pixels.iter().any(|&(x, y)| {
+        x == 0 || y == 0 || x + 1 == i64::from(image.width) || y + 1 == i64::from(image.height)
+    })
 }
 
 /// Whether both `ends` lie within `margin` px of the same edge of `image`.

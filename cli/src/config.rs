@@ -17,6 +17,16 @@
 //! camera = true           # ceiling images -> lines and lamps
 //! landmarks = true        # observations the data give (default: when there is no raw data)
 //! wall_representation = "mspace"      # or "endpoints" (the naive representation, for comparison)
+//! wall_segmentation = "split-merge"   # or "prior": a structure prior segments each scan
+//!
+//! [frontend.prior]        # with wall_segmentation = "prior" (slam_priors, issue 6)
+//! prior = "rectangular"   # a shipped prior by file stem (polygonal, rectangular, ...; see
+//!                         # `slam prior --list`), a prior's `name:`, or a .prior file's path
+//! files = []              # more prior files to load first (they may specialize shipped ones)
+//! min_points = 8          # fewest readings in a region taken as a wall
+//! tolerance = 1e-3        # rad: a region is straight when its normals agree within this
+//! [frontend.prior.inference]          # engine settings: slam_priors::Params
+//! min_region_points = 8
 //!
 //! [output]
 //! dir = "slam-out"
@@ -138,6 +148,51 @@ pub enum WallRepresentation {
     Endpoints,
 }
 
+/// How the laser wall front-end decides which readings of a scan form a wall.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WallSegmentation {
+    /// Split-and-merge (`slam_sensors::extract::extract_segments`, `[frontend.lines]`).
+    #[default]
+    SplitMerge,
+    /// A structure prior's inference on each scan (`[frontend.prior]`): its straight regions
+    /// are the walls and its outliers are left out; each wall is then fitted like a
+    /// split-and-merge segment (`slam_sensors::extract::segments_from_readings`).
+    Prior,
+}
+
+/// The `[frontend.prior]` table: the structure prior that segments scans when
+/// `wall_segmentation = "prior"`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PriorSegmentationConfig {
+    /// The prior: a shipped prior by its file stem (`polygonal`, `rectangular`,
+    /// `rectangular_relaxed`, ...), the `name:` of a shipped or loaded prior, or the path of a
+    /// prior file (relative paths from the working directory).
+    pub prior: String,
+    /// More prior files to load first (they may specialize the shipped ones).
+    pub files: Vec<PathBuf>,
+    /// Fewest readings in a region taken as a wall (the pieces are then filtered by
+    /// `[frontend.lines] min_points` and `min_length` as well).
+    pub min_points: usize,
+    /// A region is straight (a wall) when its corrected normals agree within this, rad.
+    pub tolerance: f64,
+    /// Settings of the inference engine.
+    pub inference: slam_priors::Params,
+}
+
+impl Default for PriorSegmentationConfig {
+    fn default() -> Self {
+        PriorSegmentationConfig {
+            prior: "rectangular".into(),
+            files: Vec::new(),
+            min_points: 8,
+            tolerance: 1e-3,
+            inference: slam_priors::Params::default(),
+        }
+    }
+}
+
 /// The `[frontend]` table.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -157,6 +212,10 @@ pub struct FrontendConfig {
     pub ignore_landmark_ids: bool,
     /// How walls are represented.
     pub wall_representation: WallRepresentation,
+    /// How scans are cut into walls: split-and-merge or a structure prior.
+    pub wall_segmentation: WallSegmentation,
+    /// The structure prior, for `wall_segmentation = "prior"`.
+    pub prior: PriorSegmentationConfig,
     /// Standard deviation along the wall of an endpoint not seen as a real end, for the
     /// `endpoints` representation, m.
     pub endpoint_sigma_along_wall: f64,
@@ -192,6 +251,8 @@ impl Default for FrontendConfig {
             landmarks: None,
             ignore_landmark_ids: false,
             wall_representation: WallRepresentation::Mspace,
+            wall_segmentation: WallSegmentation::SplitMerge,
+            prior: PriorSegmentationConfig::default(),
             endpoint_sigma_along_wall: 1.0,
             sigma_range: None,
             simulated_noise_factor: 1.5,
@@ -267,12 +328,45 @@ mod tests {
     }
 
     #[test]
+    fn the_prior_segmentation_and_its_keys() {
+        let config = Config::from_toml(
+            "[frontend]\nwall_segmentation = \"prior\"\n[frontend.prior]\nprior = \"polygonal\"\n\
+             files = [\"a.prior\"]\nmin_points = 5\ntolerance = 1e-4\n\
+             [frontend.prior.inference]\nmin_region_points = 6\nrefine_boundaries = false\n",
+            "t",
+        )
+        .unwrap();
+        let frontend = &config.frontend;
+        assert_eq!(frontend.wall_segmentation, WallSegmentation::Prior);
+        assert_eq!(frontend.prior.prior, "polygonal");
+        assert_eq!(frontend.prior.files, vec![PathBuf::from("a.prior")]);
+        assert_eq!(frontend.prior.min_points, 5);
+        assert_eq!(frontend.prior.tolerance, 1e-4);
+        assert_eq!(frontend.prior.inference.min_region_points, Some(6));
+        assert!(!frontend.prior.inference.refine_boundaries);
+        // The other engine settings keep their defaults.
+        assert_eq!(
+            frontend.prior.inference.bound_sigmas,
+            slam_priors::Params::default().bound_sigmas
+        );
+        let default = Config::from_toml("[frontend]\nwalls = true\n", "t").unwrap();
+        assert_eq!(
+            default.frontend.wall_segmentation,
+            WallSegmentation::SplitMerge
+        );
+        assert_eq!(default.frontend.prior, PriorSegmentationConfig::default());
+    }
+
+    #[test]
     fn unknown_keys_are_named() {
         for (text, key) in [
             ("[data]\nspeck = \"sim\"\n", "speck"),
             ("[estimator]\ntype = \"ekf\"\ngate = 0.9\n", "gate"),
             ("[frontend]\nwals = true\n", "wals"),
             ("[frontend.lines]\nsplit = 1\n", "split"),
+            ("[frontend.prior]\nname = \"polygonal\"\n", "name"),
+            ("[frontend.prior.inference]\ngamma = 1.0\n", "gamma"),
+            ("[frontend]\nwall_segmentation = \"em\"\n", "em"),
             ("[outputs]\n", "outputs"),
             ("[estimator]\ntype = \"kalman\"\n", "kalman"),
         ] {

@@ -137,7 +137,7 @@ pub fn run(
         st * st,
     ));
     let mut estimator = make_estimator(&config.estimator, start, covariance)?;
-    let mut frontend = Frontend::new(&config.frontend, sigma_range, noise_factor);
+    let mut frontend = Frontend::new(&config.frontend, sigma_range, noise_factor)?;
     let mut estimates = Vec::new();
     let mut truth = Vec::new();
     let mut gps = Vec::new();

@@ -8,7 +8,7 @@ use std::time::Instant;
 use plotters::style::RGBColor;
 use slam_core::nalgebra::Vector2;
 use slam_priors::scene::{ScanSpec, Scene, Shape};
-use slam_priors::{Library, Params, ScanInput, Topology, analyze, infer};
+use slam_priors::{Library, Params, SHIPPED, ScanInput, Topology, analyze, infer};
 use slam_sensors::{Event, LaserScan};
 
 use crate::data::DataSpec;
@@ -25,7 +25,8 @@ pub struct PriorArgs {
     /// Which scan of a data source (0-based, in stream order).
     #[arg(long, default_value_t = 0)]
     pub scan: usize,
-    /// The prior to apply, by name (see --list).
+    /// The prior to apply: a shipped prior's file stem (rectangular, polygonal, ...), a
+    /// prior's name (see --list) or a prior file.
     #[arg(long, default_value = "Rectangular prior")]
     pub prior: String,
     /// More prior files to load (they may specialize the shipped ones); repeatable.
@@ -63,6 +64,52 @@ pub struct PriorArgs {
 
 fn prior_error(e: slam_priors::PriorError) -> CliError {
     CliError::Usage(e.to_string())
+}
+
+/// The shipped priors and then `files` (which may specialize them).
+pub fn library(files: &[PathBuf]) -> Result<Library> {
+    let mut library = Library::shipped().map_err(prior_error)?;
+    for path in files {
+        library.add_file(path).map_err(prior_error)?;
+    }
+    Ok(library)
+}
+
+/// Loads and compiles a prior named by `spec`, after loading `files` into the shipped
+/// library: a shipped prior by its file stem (`rectangular` for `rectangular.prior`; `-` may
+/// stand for `_`), the `name:` of a loaded prior, or the path of a prior file to load.
+/// Unknown names and malformed files are errors that say so (with the file, line and column).
+pub fn load_prior(spec: &str, files: &[PathBuf]) -> Result<slam_priors::Prior> {
+    let mut library = library(files)?;
+    let path = std::path::Path::new(spec);
+    let name = if library.names().iter().any(|n| n == spec) {
+        spec.to_string()
+    } else if let Some((origin, text)) = SHIPPED.iter().find(|(file, _)| {
+        file.strip_suffix(".prior")
+            .is_some_and(|stem| stem.eq_ignore_ascii_case(&spec.replace('-', "_")))
+    }) {
+        // Its `name:` (parsed again on its own; it is in the library already).
+        Library::default().add(text, origin).map_err(prior_error)?
+    } else if path.is_file() {
+        library.add_file(path).map_err(prior_error)?
+    } else {
+        let stems: Vec<&str> = SHIPPED
+            .iter()
+            .filter_map(|(file, _)| file.strip_suffix(".prior"))
+            .collect();
+        return Err(CliError::Usage(format!(
+            "unknown prior {spec:?}: not a shipped prior ({}), not a loaded prior's name ({}) and \
+             not a prior file",
+            stems.join(", "),
+            library
+                .names()
+                .iter()
+                .map(|n| format!("{n:?}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    };
+    library.compile(&name).map_err(prior_error)
 }
 
 /// A scan to process, with the true surfaces of a built-in scene.
@@ -163,18 +210,15 @@ fn load(args: &PriorArgs) -> Result<Input> {
 
 /// Runs `slam prior`.
 pub fn run(args: &PriorArgs) -> Result<()> {
-    let mut library = Library::shipped().map_err(prior_error)?;
-    for path in &args.prior_files {
-        library.add_file(path).map_err(prior_error)?;
-    }
     if args.list {
+        let library = library(&args.prior_files)?;
         for name in library.names() {
             let prior = library.compile(&name).map_err(prior_error)?;
             println!("{name} (order {})", prior.order);
         }
         return Ok(());
     }
-    let prior = library.compile(&args.prior).map_err(prior_error)?;
+    let prior = load_prior(&args.prior, &args.prior_files)?;
     if !(args.sigma_range.is_finite() && args.sigma_range > 0.0) {
         return Err(CliError::Usage(format!(
             "--sigma-range must be positive, got {}",

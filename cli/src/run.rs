@@ -96,6 +96,7 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
         return crate::polygon::run_config(config, polygon, quiet);
     }
     let spec: DataSpec = config.data.spec.parse()?;
+    crate::frontend::Frontend::check(&config.frontend)?;
     let loaded = spec.load_with(config.data.seed, &config.data.reader_options())?;
     let (sigma_range, noise_factor) = sigma_range(config, &loaded)?;
     let Loaded {

@@ -177,7 +177,9 @@ impl Default for Params {
 }
 
 impl Params {
-    fn validate(&self) -> Result<()> {
+    /// Checks that the settings are in range (what [`infer`] checks first), so that a caller
+    /// can reject bad settings once, before any scan.
+    pub fn validate(&self) -> Result<()> {
         let ok = self.bound_sigmas > 0.0
             && self.inlier_probability > 0.0
             && self.inlier_probability < 1.0

@@ -239,6 +239,84 @@ pub fn extract_segments(scan: &LaserScan, params: &LineExtractorParams) -> Vec<E
     segments
 }
 
+/// Wall segments of a scan from a segmentation made elsewhere (e.g. a structure prior):
+/// `groups` lists, per wall, the beam indices of the readings that belong to it, in scan
+/// order (readings left out of every group are outliers).
+///
+/// Each group is fitted and described exactly as [`extract_segments`] describes its parts:
+/// the same total-least-squares line and `(alpha, rho)` covariance from
+/// `params.sigma_range`, the same end spacing, the same corner and jump-edge detection of
+/// real ends between consecutive segments. Only the decision of which readings form a wall
+/// differs. So that a group bridging a gap is not one wall, a group is cut where two of its
+/// consecutive readings lie farther apart than `max_gap + gap_per_metre * range` (the
+/// clustering rule of [`extract_segments`], applied to the group's own readings, so a
+/// reading left out as an outlier does not cut it); the pieces are then filtered as in
+/// [`extract_segments`]: free-standing short objects are left out, and pieces with fewer than
+/// `min_points` readings or shorter than `min_length` are dropped. Invalid readings and beam
+/// indices outside the scan are ignored.
+///
+/// ```
+/// use slam_sensors::{LaserScan, extract::{extract_segments, segments_from_readings, LineExtractorParams}};
+/// // A wall at x = 2 seen across 90 degrees, as one group: the same segment as split-and-merge.
+/// let n = 91;
+/// let ranges = (0..n).map(|i| {
+///     let bearing = -std::f64::consts::FRAC_PI_4 + i as f64 * std::f64::consts::FRAC_PI_2 / 90.0;
+///     2.0 / bearing.cos()
+/// }).collect();
+/// let scan = LaserScan::new(-std::f64::consts::FRAC_PI_4, std::f64::consts::FRAC_PI_4, ranges, 0.0, 30.0).unwrap();
+/// let params = LineExtractorParams::default();
+/// let given = segments_from_readings(&scan, &[(0..n).collect()], &params);
+/// assert_eq!(given, extract_segments(&scan, &params));
+/// ```
+pub fn segments_from_readings(
+    scan: &LaserScan,
+    groups: &[Vec<usize>],
+    params: &LineExtractorParams,
+) -> Vec<ExtractedSegment> {
+    let points = scan.points();
+    // Position in `points` of each beam's valid reading.
+    let mut of_beam = vec![None; scan.ranges.len()];
+    for (k, p) in points.iter().enumerate() {
+        of_beam[p.index] = Some(k);
+    }
+    let mut segments: Vec<ExtractedSegment> = Vec::new();
+    for group in groups {
+        let members: Vec<ScanPoint> = group
+            .iter()
+            .filter_map(|&beam| of_beam.get(beam).copied().flatten())
+            .map(|k| points[k])
+            .collect();
+        let mut start = 0;
+        for k in 1..=members.len() {
+            let breaks = k == members.len() || {
+                let (a, b) = (&members[k - 1], &members[k]);
+                b.index <= a.index
+                    || (b.position - a.position).norm()
+                        > params.max_gap + params.gap_per_metre * a.range.max(b.range)
+            };
+            if !breaks {
+                continue;
+            }
+            let piece = &members[start..k];
+            start = k;
+            let (Some(first), Some(last)) = (piece.first(), piece.last()) else {
+                continue;
+            };
+            if is_free_standing_object(scan, first, last, params) {
+                continue;
+            }
+            if let Some(s) = segment(piece, params)
+                .filter(|s| s.points >= params.min_points && s.length() >= params.min_length)
+            {
+                segments.push(s);
+            }
+        }
+    }
+    segments.sort_by_key(|s| s.beams[0]);
+    mark_real_ends(scan, &mut segments, params);
+    segments
+}
+
 /// A short cluster whose neighbouring readings both lie well behind it: a pillar, a tree or
 /// a box, not a wall.
 fn is_free_standing_object(
@@ -535,6 +613,71 @@ mod tests {
                 position: Vector2::new(range * bearing.cos(), range * bearing.sin()),
             })
             .collect()
+    }
+
+    /// A room corner: walls x = 3 and y = 2 seen from the origin over 0..90 degrees.
+    fn corner_scan() -> LaserScan {
+        let n = 181;
+        let increment = std::f64::consts::FRAC_PI_2 / (n - 1) as f64;
+        let ranges = (0..n)
+            .map(|i| {
+                let b = i as f64 * increment;
+                (3.0 / b.cos()).min(2.0 / b.sin())
+            })
+            .collect();
+        LaserScan::with_increment(0.0, increment, ranges, 0.0, 30.0).unwrap()
+    }
+
+    #[test]
+    fn given_readings_are_fitted_like_split_and_merge() {
+        let scan = corner_scan();
+        let params = LineExtractorParams {
+            sigma_range: 0.01,
+            ..Default::default()
+        };
+        let extracted = extract_segments(&scan, &params);
+        assert_eq!(extracted.len(), 2);
+        // The same segmentation given from outside gives the same segments, corners included.
+        let groups: Vec<Vec<usize>> = extracted
+            .iter()
+            .map(|s| (s.beams[0]..=s.beams[1]).collect())
+            .collect();
+        let given = segments_from_readings(&scan, &groups, &params);
+        assert_eq!(given, extracted);
+        assert_eq!(given[0].real, [false, true]);
+        assert_eq!(given[1].real, [true, false]);
+    }
+
+    #[test]
+    fn readings_left_out_are_outliers_and_gaps_cut_a_group() {
+        let mut scan = corner_scan();
+        let params = LineExtractorParams {
+            sigma_range: 0.01,
+            ..Default::default()
+        };
+        // Clutter on the first wall, left out of its group: the wall is fitted without it.
+        scan.ranges[20] = 1.0;
+        let corner = (2.0f64).atan2(3.0);
+        let split = (0..scan.ranges.len())
+            .position(|i| scan.bearing(i) > corner)
+            .unwrap();
+        let first: Vec<usize> = (0..split).filter(|&i| i != 20).collect();
+        let second: Vec<usize> = (split..scan.ranges.len()).collect();
+        let segments = segments_from_readings(&scan, &[first, second.clone()], &params);
+        assert_eq!(segments.len(), 2);
+        assert!(segments[0].alpha.abs() < 1e-9 && (segments[0].rho - 3.0).abs() < 1e-9);
+        assert_eq!(segments[0].real, [false, true]);
+        // One group over both walls without the corner's readings: the gap cuts it in two, and
+        // neither piece reaches the corner, so those ends are not real.
+        let far: Vec<usize> = (0..scan.ranges.len())
+            .filter(|&i| i != 20 && !(split - 30..split + 30).contains(&i))
+            .collect();
+        let segments = segments_from_readings(&scan, &[far], &params);
+        assert_eq!(segments.len(), 2);
+        assert!((segments[1].alpha - std::f64::consts::FRAC_PI_2).abs() < 1e-9);
+        assert!((segments[1].rho - 2.0).abs() < 1e-9);
+        // Beams outside the scan and max-range readings are ignored.
+        assert!(segments_from_readings(&scan, &[vec![10_000]], &params).is_empty());
     }
 
     /// The analytic covariance is J J^T sigma^2 with J the derivative of (alpha, rho) w.r.t.

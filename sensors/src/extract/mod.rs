@@ -1,11 +1,12 @@
-//! Extraction front-ends: laser scans to wall segments ([`extract_segments`]) and poles
+//! Extraction front-ends: laser scans to wall segments ([`extract_segments`], or
+//! [`segments_from_readings`] for a segmentation made elsewhere) and poles
 //! ([`extract_poles`]); ceiling images to lines and lamps ([`image`]).
 
 pub mod image;
 mod lines;
 mod poles;
 
-pub use lines::{ExtractedSegment, LineExtractorParams, extract_segments};
+pub use lines::{ExtractedSegment, LineExtractorParams, extract_segments, segments_from_readings};
 pub use poles::{ExtractedPole, PoleExtractorParams, extract_poles};
 
 use crate::scan::{LaserScan, ScanPoint};

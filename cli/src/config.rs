@@ -223,13 +223,12 @@ pub struct FrontendConfig {
     /// else 0.03).
     pub sigma_range: Option<f64>,
     /// On simulated data, the deviations of what the extractors find (wall lines and ends,
-    /// poles) are multiplied by this factor. The wall extractor alone is calibrated at 1
-    /// (mean line NIS 2.05 against the simulator's truth: `cargo run --release -p
-    /// slam-sensors --example segment_calibration`), but the filter is not: over seeds 1-50
-    /// of the built-in world (`slam consistency`) the average pose NEES is 5.10 with 1.0,
-    /// 3.15 with 1.5, 2.73 with 1.75 and 2.50 with 2.0 (3 when consistent), driven by a few
-    /// runs whose pose drifts along the corridor while its deviation stays flat. 1.5 keeps
-    /// the mean closest to 3 (seeds 101-150: 3.07).
+    /// poles) are multiplied by this factor (1: the laser's own noise). The wall extractor is
+    /// calibrated at 1 against the simulator's truth (mean line NIS 2.05, corner ends 1.02:
+    /// `cargo run --release -p slam-sensors --example segment_calibration`), and so is the
+    /// filter: over seeds 1-50 of the built-in world (`slam consistency`) the average pose
+    /// NEES is 2.81 with 1.0 and 2.51 with 1.25 (3 when consistent). Larger factors make the
+    /// filter pessimistic; they are for experiments.
     pub simulated_noise_factor: f64,
     /// Line extractor settings (its `sigma_range` is replaced by the laser's).
     pub lines: LineExtractorParams,
@@ -256,7 +255,7 @@ impl Default for FrontendConfig {
             prior: PriorSegmentationConfig::default(),
             endpoint_sigma_along_wall: 1.0,
             sigma_range: None,
-            simulated_noise_factor: 1.5,
+            simulated_noise_factor: 1.0,
             lines: LineExtractorParams::default(),
             pole_extractor: PoleExtractorParams::default(),
             pole_sigma_floor: 0.01,

@@ -175,16 +175,17 @@ fn main() {
                             _ => 3,
                         };
                         by_incidence[i].add(nis, 9.21);
-                        let corner_end = (0..2).any(|k| {
-                            segment.real[k] && segment.end_spacing[k] <= params.sigma_range * 1.0001
-                        });
+                        let corner_end = (0..2).any(|k| segment.real[k] && segment.corner[k]);
                         let kind = if corner_end {
                             2
                         } else {
                             usize::from(segment.real[0] || segment.real[1])
                         };
                         by_ends[kind].add(nis, 9.21);
-                        for k in 0..2 {
+                        let end_sigmas = segment
+                            .to_observation(params.sigma_range)
+                            .map_or([params.sigma_range; 2], |o| o.sigma_endpoints);
+                        for (k, &sigma) in end_sigmas.iter().enumerate() {
                             if !segment.real[k] {
                                 continue;
                             }
@@ -198,12 +199,10 @@ fn main() {
                                 .copied()
                                 .unwrap_or(end);
                             let along = (end - true_end).dot(&wall.tangent);
-                            let sigma = segment.end_spacing[k].max(params.sigma_range);
                             let z2 = (along / sigma).powi(2);
                             ends_all.add(z2, 6.63);
                             // A corner (placed at the lines' intersection) or a jump edge.
-                            let kind =
-                                usize::from(segment.end_spacing[k] > params.sigma_range * 1.0001);
+                            let kind = usize::from(!segment.corner[k]);
                             ends_by_kind[kind].add(z2, 6.63);
                             if kind == 1 {
                                 // Positive: the end placed beyond the true end (the wall too long).

@@ -86,9 +86,10 @@ pub struct EkfParams {
     pub jcbb_max_nodes: usize,
     /// Observability-constrained updates (Huang, Mourikis & Roumeliotis, "Observability-based
     /// rules for designing consistent EKF SLAM estimators", IJRR 2010): each measurement
-    /// Jacobian is projected so that it cannot observe a world translation or rotation as
-    /// the filter's linearizations have carried those directions. Without it the EKF gains
-    /// spurious information about the absolute heading and becomes overconfident.
+    /// Jacobian is projected so that it cannot observe a world translation or rotation, and
+    /// the pose transition is the closest one that carries those directions from one
+    /// predicted pose to the next. Without it the EKF gains spurious information about the
+    /// absolute heading and becomes overconfident.
     pub observability_constraint: bool,
 }
 
@@ -270,6 +271,26 @@ impl<P: RobotPose> Ekf<P> {
             corners_joined: 0,
             view_batch: Vec::new(),
         })
+    }
+
+    /// The pose transition `Phi*` closest to `J_rr` (Frobenius norm) that carries the
+    /// unobservable directions of the pose rows, `N_k` (kept from the last prediction), onto
+    /// those at the predicted pose, `N_k+1`: `Phi* = J + (N_k+1 - J N_k)(N_k^T N_k)^-1 N_k^T`
+    /// (the OC-EKF of Huang, Mourikis & Roumeliotis 2010). Propagating `N` by `J_rr` alone
+    /// would leave its rotation direction at a pose that the updates never moved (the
+    /// dead-reckoned one), so that `H N = 0` would be imposed about the wrong point; for a
+    /// planar pose `Phi*` differs from `J_rr` only in using the whole displacement since the
+    /// last prediction, the last update's correction included.
+    fn constrained_transition(&self, d_pose_d_pose: &DMatrix<f64>, predicted: &P) -> DMatrix<f64> {
+        let n_now = self.cov.generators(&Self::pose_indices());
+        let g = predicted.planar_motion_generators();
+        let n_next = DMatrix::from_fn(P::DIM, 3, |i, j| g[j].get(i).copied().unwrap_or(0.0));
+        match (n_now.transpose() * &n_now).try_inverse() {
+            Some(gram_inverse) => {
+                d_pose_d_pose + (n_next - d_pose_d_pose * &n_now) * gram_inverse * n_now.transpose()
+            }
+            None => d_pose_d_pose.clone(),
+        }
     }
 
     /// The settings.
@@ -573,7 +594,12 @@ impl<P: RobotPose> Estimator<P> for Ekf<P> {
             * prediction.d_pose_d_control.transpose();
         slam_core::ensure_finite(added.as_slice(), "motion noise")?;
         slam_core::ensure_finite(prediction.d_pose_d_pose.as_slice(), "J_rr")?;
-        self.cov.predict(&prediction.d_pose_d_pose, &added);
+        let transition = if self.params.observability_constraint {
+            self.constrained_transition(&prediction.d_pose_d_pose, &prediction.pose)
+        } else {
+            prediction.d_pose_d_pose.clone()
+        };
+        self.cov.predict(&transition, &added);
         self.pose = prediction.pose;
         Ok(())
     }
@@ -636,4 +662,110 @@ pub fn pose_error<P: RobotPose>(truth: &P, estimate: &P) -> Vec<f64> {
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use slam_core::{MotionPrediction, Pose2};
+
+    /// A body-frame increment `(dx, dy, dtheta)` with a small diagonal noise.
+    #[derive(Debug)]
+    struct BodyIncrement([f64; 3]);
+
+    impl MotionModel<Pose2> for BodyIncrement {
+        fn control(&self) -> DVector<f64> {
+            DVector::from_column_slice(&self.0)
+        }
+
+        fn apply_control(&self, pose: &Pose2, control: &DVector<f64>) -> Result<Pose2> {
+            let (s, c) = pose.theta.sin_cos();
+            Ok(Pose2::new(
+                pose.x + c * control[0] - s * control[1],
+                pose.y + s * control[0] + c * control[1],
+                pose.theta + control[2],
+            ))
+        }
+
+        fn predict(&self, pose: &Pose2) -> Result<MotionPrediction<Pose2>> {
+            let [dx, dy, _] = self.0;
+            let (s, c) = pose.theta.sin_cos();
+            Ok(MotionPrediction {
+                pose: self.apply_control(pose, &self.control())?,
+                d_pose_d_pose: DMatrix::from_row_slice(
+                    3,
+                    3,
+                    &[
+                        1.0,
+                        0.0,
+                        -s * dx - c * dy,
+                        0.0,
+                        1.0,
+                        c * dx - s * dy,
+                        0.0,
+                        0.0,
+                        1.0,
+                    ],
+                ),
+                d_pose_d_control: DMatrix::from_row_slice(
+                    3,
+                    3,
+                    &[c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0],
+                ),
+                cov_control: DMatrix::identity(3, 3) * 1e-4,
+            })
+        }
+    }
+
+    fn generators_at(pose: &Pose2) -> DMatrix<f64> {
+        let g = pose.planar_motion_generators();
+        DMatrix::from_fn(3, 3, |i, j| g[j][i])
+    }
+
+    /// After an update moved the pose, the next prediction puts the unobservable directions of
+    /// the pose rows at the predicted pose (OC-EKF), not at the dead-reckoned one.
+    #[test]
+    fn pose_generators_follow_the_estimate_through_corrections() {
+        let start = Pose2::new(1.0, 2.0, 0.3);
+        let motion = BodyIncrement([0.5, 0.0, 0.1]);
+        for constrained in [true, false] {
+            let params = EkfParams {
+                observability_constraint: constrained,
+                ..EkfParams::default()
+            };
+            let mut ekf = Ekf::new(start, DMatrix::identity(3, 3) * 1e-4, params).unwrap();
+            // What an update's correction does to the estimate (the generators stay).
+            ekf.apply_state_change(&DVector::from_column_slice(&[0.4, -0.7, 0.05]))
+                .unwrap();
+            ekf.predict(&motion).unwrap();
+            let at_estimate = generators_at(&ekf.pose);
+            let dead_reckoned = motion.apply_control(&start, &motion.control()).unwrap();
+            let expected = if constrained {
+                at_estimate.clone()
+            } else {
+                // J_rr evaluated at the corrected heading, applied to the old directions.
+                let old = generators_at(&start);
+                let j = motion.predict(&Pose2::new(1.4, 1.3, 0.35)).unwrap();
+                j.d_pose_d_pose * old
+            };
+            let carried = ekf.cov.generators(&[0, 1, 2]);
+            assert!(
+                (&carried - &expected).amax() < 1e-12,
+                "constrained {constrained}: {carried} against {expected}"
+            );
+            if !constrained {
+                assert!((&carried - &at_estimate).amax() > 0.1, "{dead_reckoned:?}");
+            }
+        }
+    }
+
+    /// Without a correction the constrained transition is `J_rr` itself.
+    #[test]
+    fn without_a_correction_the_transition_is_unchanged() {
+        let pose = Pose2::new(-3.0, 4.0, 2.0);
+        let ekf = Ekf::new(pose, DMatrix::identity(3, 3), EkfParams::default()).unwrap();
+        let prediction = BodyIncrement([0.3, 0.1, -0.2]).predict(&pose).unwrap();
+        let transition = ekf.constrained_transition(&prediction.d_pose_d_pose, &prediction.pose);
+        assert!((transition - prediction.d_pose_d_pose).amax() < 1e-12);
+    }
 }

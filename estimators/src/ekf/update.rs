@@ -169,7 +169,7 @@ impl<P: RobotPose> Ekf<P> {
     /// `x += dx`: the pose by its parameters, every feature by `x_f += B~ dx_p` (eq. 24) and
     /// every shared block by its identity rows.
     /// All or nothing: on error the state is unchanged.
-    fn apply_state_change(&mut self, dx: &DVector<f64>) -> Result<()> {
+    pub(super) fn apply_state_change(&mut self, dx: &DVector<f64>) -> Result<()> {
         let d = P::DIM;
         let pose = add_to_pose(&self.pose, &dx.as_slice()[..d])?;
         let perturbations: Vec<(RowOwner, DVector<f64>)> = self

@@ -70,12 +70,15 @@ pub struct ExtractedSegment {
     pub ends: [Vector2<f64>; 2],
     /// Whether each end is a real end of the wall (corner or jump edge).
     pub real: [bool; 2],
+    /// Whether each real end is a corner with the neighbouring segment (else a jump edge).
+    pub corner: [bool; 2],
     /// Beam indices of the first and last point.
     pub beams: [usize; 2],
     /// Number of points.
     pub points: usize,
-    /// Distance between the end points and their inner neighbours, m: how well each end is
-    /// localized along the wall.
+    /// How well each end is localized along the wall, m: for a real end its deviation (see
+    /// [`extract_segments`]), otherwise the distance between the end point and its inner
+    /// neighbour.
     pub end_spacing: [f64; 2],
 }
 
@@ -85,10 +88,19 @@ impl ExtractedSegment {
         (self.ends[1] - self.ends[0]).norm()
     }
 
-    /// The [`WallObservation`] of this segment; each end's deviation along the wall is the
+    /// The [`WallObservation`] of this segment. A real end's deviation along the wall is the
+    /// one its placement found (edge interval or corner propagation); the other ends get the
     /// larger of the range noise and the spacing of the points there.
     pub fn to_observation(&self, sigma_range: f64) -> slam_core::Result<WallObservation> {
-        let sigma_endpoints = self.end_spacing.map(|s| s.max(sigma_range));
+        let mut sigma_endpoints = self.end_spacing.map(|s| s.max(sigma_range));
+        for (sigma, (&real, &spacing)) in sigma_endpoints
+            .iter_mut()
+            .zip(self.real.iter().zip(&self.end_spacing))
+        {
+            if real && spacing > 0.0 {
+                *sigma = spacing;
+            }
+        }
         WallObservation::new(
             self.alpha,
             self.rho,
@@ -473,6 +485,7 @@ fn segment(points: &[ScanPoint], params: &LineExtractorParams) -> Option<Extract
         cov: fit.covariance(points, params.sigma_range),
         ends: [fit.project(&first.position), fit.project(&last.position)],
         real: [false, false],
+        corner: [false, false],
         beams: [first.index, last.index],
         points: points.len(),
         end_spacing: [
@@ -482,45 +495,56 @@ fn segment(points: &[ScanPoint], params: &LineExtractorParams) -> Option<Extract
     })
 }
 
-/// A real end's position and its deviation along the wall (beyond the range noise).
+/// A real end's position and its deviation along the wall, m.
 type PlacedEnd = (Vector2<f64>, f64);
 
 /// Flags corners between consecutive segments and jump edges, and places each real end
 /// where the wall most likely ends: a corner at the intersection of the two lines, an edge
 /// halfway between the last point on the wall and where the next beam's ray crosses the
 /// line (the true edge lies anywhere between them; the last point alone would put it
-/// systematically short by half a beam spacing). A real end's deviation along the wall is
-/// then that of the interval, `width / sqrt(12)`, with the range noise.
+/// systematically short by half a beam spacing). An edge's deviation along the wall is that
+/// of the interval, `width / sqrt(12)`, with the range noise along the wall; a corner's is
+/// propagated from the two lines' covariances.
 fn mark_real_ends(
     scan: &LaserScan,
     segments: &mut [ExtractedSegment],
     params: &LineExtractorParams,
 ) {
     let mut placed: Vec<[Option<PlacedEnd>; 2]> = vec![[None, None]; segments.len()];
+    let mut corners = vec![[false, false]; segments.len()];
     for i in 0..segments.len() {
         for (side, slot) in placed[i].iter_mut().enumerate() {
             let corner = corner_with_neighbour(segments, i, side, params);
+            corners[i][side] = corner.is_some();
             let edge = if corner.is_some() {
                 None
             } else {
-                sees_past_the_end(scan, &segments[i], side, params.jump)
+                sees_past_the_end(scan, &segments[i], side, params.jump).map(|(position, sigma)| {
+                    // The range noise of the last reading, along the wall.
+                    let tangent = Vector2::new(-segments[i].alpha.sin(), segments[i].alpha.cos());
+                    let beam = segments[i].ends[side].normalize();
+                    let along = params.sigma_range * tangent.dot(&beam).abs();
+                    (position, sigma.hypot(along))
+                })
             };
             *slot = corner.or(edge);
         }
     }
-    for (segment, ends) in segments.iter_mut().zip(placed) {
+    for ((segment, ends), corner) in segments.iter_mut().zip(placed).zip(corners) {
+        segment.corner = corner;
         for (side, end) in ends.into_iter().enumerate() {
             if let Some((position, sigma)) = end {
                 segment.real[side] = true;
                 segment.ends[side] = position;
-                segment.end_spacing[side] = sigma.hypot(params.sigma_range);
+                segment.end_spacing[side] = sigma;
             }
         }
     }
 }
 
 /// The corner where segment `i` meets its neighbour on `side` (the intersection of the two
-/// lines, with no deviation of its own beyond the range noise), if they meet in one.
+/// lines, with its deviation along segment `i` from both lines' covariances), if they meet in
+/// one.
 fn corner_with_neighbour(
     segments: &[ExtractedSegment],
     i: usize,
@@ -546,12 +570,44 @@ fn corner_with_neighbour(
         return None;
     }
     let (r1, r2) = (segments[i].rho, other.rho);
-    let corner = Vector2::new(
+    let corner = intersection(a1, r1, a2, r2);
+    // A corner that is not near both ends is not this corner.
+    if (corner - mine).norm() > params.corner_gap {
+        return None;
+    }
+    let sigma = corner_sigma_along(&segments[i], other);
+    sigma.is_finite().then_some((corner, sigma))
+}
+
+/// The point on both lines `(cos a, sin a) . p = r`; not finite for parallel lines.
+fn intersection(a1: f64, r1: f64, a2: f64, r2: f64) -> Vector2<f64> {
+    let det = (a2 - a1).sin();
+    Vector2::new(
         (r1 * a2.sin() - r2 * a1.sin()) / det,
         (r2 * a1.cos() - r1 * a2.cos()) / det,
-    );
-    // A corner that is not near both ends is not this corner.
-    ((corner - mine).norm() <= params.corner_gap).then_some((corner, 0.0))
+    )
+}
+
+/// Deviation along `mine` of its intersection with `other`, from both lines' `(alpha, rho)`
+/// covariances (central differences of the intersection, first order).
+fn corner_sigma_along(mine: &ExtractedSegment, other: &ExtractedSegment) -> f64 {
+    let tangent = Vector2::new(-mine.alpha.sin(), mine.alpha.cos());
+    let along =
+        |params: [f64; 4]| tangent.dot(&intersection(params[0], params[1], params[2], params[3]));
+    let at = [mine.alpha, mine.rho, other.alpha, other.rho];
+    let mut gradient = [0.0; 4];
+    for (k, slot) in gradient.iter_mut().enumerate() {
+        let step = 1e-6;
+        let (mut plus, mut minus) = (at, at);
+        plus[k] += step;
+        minus[k] -= step;
+        *slot = (along(plus) - along(minus)) / (2.0 * step);
+    }
+    let g1 = Vector2::new(gradient[0], gradient[1]);
+    let g2 = Vector2::new(gradient[2], gradient[3]);
+    let variance =
+        (g1.transpose() * mine.cov * g1)[(0, 0)] + (g2.transpose() * other.cov * g2)[(0, 0)];
+    variance.max(0.0).sqrt()
 }
 
 /// When the reading just outside `side` of the segment lies beyond the line's extension (a

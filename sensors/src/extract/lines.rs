@@ -769,7 +769,7 @@ mod tests {
     /// noisy scans of a room corner, the line NIS against the true walls averages 2 (it
     /// averaged about 3 when the corner readings went into both fits).
     #[test]
-    fn corner_segments_are_unbiased() {
+    fn corner_segments_and_their_ends_are_calibrated() {
         use rand::SeedableRng;
         use rand_distr::{Distribution, Normal};
         let sigma = 0.02;
@@ -778,6 +778,7 @@ mod tests {
         // Walls x = 2 (alpha 0, rho 2) and y = 1 (alpha pi/2, rho 1) meet at (2, 1).
         let truth = [(0.0, 2.0), (std::f64::consts::FRAC_PI_2, 1.0)];
         let (mut sum, mut count) = (0.0, 0);
+        let (mut corner_z2, mut corners) = (0.0, 0);
         for _ in 0..200 {
             let angle_min = -std::f64::consts::FRAC_PI_2;
             let increment = std::f64::consts::PI / 360.0;
@@ -820,10 +821,27 @@ mod tests {
                 let nis = (e.transpose() * segment.cov.try_inverse().unwrap() * e)[0];
                 sum += nis;
                 count += 1;
+                // The corner end: its error along the wall against its deviation.
+                let observation = segment.to_observation(sigma).unwrap();
+                for side in 0..2 {
+                    if segment.corner[side] {
+                        let tangent = Vector2::new(-segment.alpha.sin(), segment.alpha.cos());
+                        let along = tangent.dot(&(segment.ends[side] - Vector2::new(2.0, 1.0)));
+                        corner_z2 += (along / observation.sigma_endpoints[side]).powi(2);
+                        corners += 1;
+                    }
+                }
             }
         }
         let mean = sum / count as f64;
         assert!(count >= 400, "{count} segments");
         assert!((1.6..2.5).contains(&mean), "mean line NIS {mean}");
+        // Calibrated corner ends (with the range noise as their deviation: about 0.04).
+        let corner_mean = corner_z2 / corners as f64;
+        assert!(corners >= 300, "{corners} corner ends");
+        assert!(
+            (0.6..1.5).contains(&corner_mean),
+            "corner end z^2 {corner_mean}"
+        );
     }
 }

@@ -255,9 +255,7 @@ impl<P: RobotPose> Ekf<P> {
         }
         slam_core::ensure_finite(pose_covariance.as_slice(), "initial pose covariance")?;
         let mut cov = StateCovariance::zeros(0);
-        let g = pose.planar_motion_generators();
-        let generators = DMatrix::from_fn(P::DIM, 3, |i, j| g[j].get(i).copied().unwrap_or(0.0));
-        cov.append(&pose_covariance, None, &generators);
+        cov.append(&pose_covariance, None, &pose_generators(&pose));
         Ok(Ekf {
             params,
             pose,
@@ -283,8 +281,7 @@ impl<P: RobotPose> Ekf<P> {
     /// last prediction, the last update's correction included.
     fn constrained_transition(&self, d_pose_d_pose: &DMatrix<f64>, predicted: &P) -> DMatrix<f64> {
         let n_now = self.cov.generators(&Self::pose_indices());
-        let g = predicted.planar_motion_generators();
-        let n_next = DMatrix::from_fn(P::DIM, 3, |i, j| g[j].get(i).copied().unwrap_or(0.0));
+        let n_next = pose_generators(predicted);
         match (n_now.transpose() * &n_now).try_inverse() {
             Some(gram_inverse) => {
                 d_pose_d_pose + (n_next - d_pose_d_pose * &n_now) * gram_inverse * n_now.transpose()
@@ -519,6 +516,13 @@ impl<P: RobotPose> Ekf<P> {
     }
 }
 
+/// The change of the pose parameters under a world translation along x, along y and a
+/// rotation about z (`P::DIM x 3`).
+fn pose_generators<P: RobotPose>(pose: &P) -> DMatrix<f64> {
+    let g = pose.planar_motion_generators();
+    DMatrix::from_fn(P::DIM, 3, |i, j| g[j].get(i).copied().unwrap_or(0.0))
+}
+
 /// The change of coordinates under a world translation along x, along y and a rotation
 /// about z (`dim(x_f) x 3`).
 pub(crate) fn coordinate_generators(coordinates: &Coordinates) -> DMatrix<f64> {
@@ -717,11 +721,6 @@ mod tests {
         }
     }
 
-    fn generators_at(pose: &Pose2) -> DMatrix<f64> {
-        let g = pose.planar_motion_generators();
-        DMatrix::from_fn(3, 3, |i, j| g[j][i])
-    }
-
     /// After an update moved the pose, the next prediction puts the unobservable directions of
     /// the pose rows at the predicted pose (OC-EKF), not at the dead-reckoned one.
     #[test]
@@ -738,13 +737,13 @@ mod tests {
             ekf.apply_state_change(&DVector::from_column_slice(&[0.4, -0.7, 0.05]))
                 .unwrap();
             ekf.predict(&motion).unwrap();
-            let at_estimate = generators_at(&ekf.pose);
+            let at_estimate = pose_generators(&ekf.pose);
             let dead_reckoned = motion.apply_control(&start, &motion.control()).unwrap();
             let expected = if constrained {
                 at_estimate.clone()
             } else {
                 // J_rr evaluated at the corrected heading, applied to the old directions.
-                let old = generators_at(&start);
+                let old = pose_generators(&start);
                 let j = motion.predict(&Pose2::new(1.4, 1.3, 0.35)).unwrap();
                 j.d_pose_d_pose * old
             };

@@ -26,4 +26,4 @@ mod lifecycle;
 pub use ekf::{Association, Ekf, EkfParams, pose_error};
 pub use em_polygon::{EmPolygonParams, PolygonMap, fit_polygons};
 pub use fastslam::{FastSlam, FastSlamParams, Proposal};
-pub use ipslam::{ClusterFeatureFactory, Ipslam, IpslamParams};
+pub use ipslam::{ClusterFeatureFactory, Ipslam, IpslamParams, IpslamProposal};

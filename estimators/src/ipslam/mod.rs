@@ -19,25 +19,30 @@
 //!
 //! Then the particles are resampled (systematic) when the effective sample size is below the
 //! threshold (the paper resamples at every step: threshold 1). The particles sample their
-//! poses from the motion model as in [`crate::FastSlam`], and share their cluster maps after
-//! resampling (persistent vectors).
+//! poses from the motion model as in [`crate::FastSlam`] (or, with
+//! [`IpslamProposal::ScanMatch`], from the match of the scan to their own clusters), and share
+//! their cluster maps after resampling (persistent vectors).
 //!
 //! Deviations from the paper, each a setting: weights use the map **before** the merge
 //! (Table I scores the merged map, which has absorbed the points it scores); G-means tests the
 //! residuals **across** the principal direction (the 1-D PPCA noise term, Gaussian for a wall),
-//! since the projection along a wall is uniform and would split every wall into short pieces;
+//! since the projection along a wall is uniform and would split every wall into short pieces,
+//! and also splits a cluster thicker than `new_cluster_max_sigma` (the residuals of a
+//! scattered group can look normal: on the Intel log most scans kept groups 0.3-1 m thick);
 //! scans are processed after `min_travel` / `min_turn_deg` of motion.
 //!
 //! The map's features are made by a factory the caller gives (a PPCA line feature type
 //! lives outside this crate, which knows no feature type).
 
+mod matching;
 pub mod ppca;
 
 use std::sync::{Arc, OnceLock};
 
+use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use slam_core::nalgebra::{DMatrix, Vector2, Vector3};
+use slam_core::nalgebra::{DMatrix, Matrix3, Vector2, Vector3};
 use slam_core::{
     Error, Estimator, Feature, FeatureMap, MotionModel, Observation, Pose3, Result, RobotPose,
     RowOwner, UpdateReport,
@@ -49,6 +54,23 @@ pub use ppca::{Cluster, GMeansParams};
 
 /// Makes the map feature of a cluster (a PPCA line behind the slam-core traits).
 pub type ClusterFeatureFactory = Arc<dyn Fn(&Cluster) -> Result<Box<dyn Feature>> + Send + Sync>;
+
+/// How IPSLAM's particles draw their poses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum IpslamProposal {
+    /// From the motion model alone (the paper, eq. 17).
+    #[default]
+    Motion,
+    /// Scan matching (an addition, in the manner of grid-based particle filters, Grisetti et
+    /// al. 2007): each particle follows the motion model's mean; at a processed scan its pose
+    /// moves to the nearest minimum of the robust point-to-line distances of the scan to its
+    /// own clusters plus the motion model's Gaussian prior (accumulated since the last
+    /// processed scan), and is drawn from the Gaussian of that minimum (inverse of the
+    /// Gauss-Newton information). Where too few points match, it is drawn from the prior.
+    /// The weight stays eq. 18 at the drawn pose.
+    ScanMatch,
+}
 
 /// Settings of [`Ipslam`]; `Default` gives the paper's values where it states them.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -87,6 +109,12 @@ pub struct IpslamParams {
     /// are not independent given the map; values below 1 temper the weights, as in grid-based
     /// particle filters, so that resampling keeps more of the particles.
     pub likelihood_scale: f64,
+    /// The motion model (`"motion"`, the paper) or scan matching (`"scan-match"`).
+    pub proposal: IpslamProposal,
+    /// Scan matching: a point matches a cluster within this distance of its line, m.
+    pub match_gate: f64,
+    /// Scan matching: deviation of a point from its cluster's line, m.
+    pub match_point_sigma: f64,
 }
 
 impl Default for IpslamParams {
@@ -107,6 +135,9 @@ impl Default for IpslamParams {
             min_travel: 0.3,
             min_turn_deg: 10.0,
             likelihood_scale: 1.0,
+            proposal: IpslamProposal::Motion,
+            match_gate: 0.3,
+            match_point_sigma: 0.05,
         }
     }
 }
@@ -158,10 +189,22 @@ impl IpslamParams {
                 "min_turn_deg >= 0",
             ),
             (positive(self.likelihood_scale), "likelihood_scale > 0"),
+            (positive(self.match_gate), "match_gate > 0"),
+            (positive(self.match_point_sigma), "match_point_sigma > 0"),
         ];
         match checks.iter().find(|(ok, _)| !ok) {
             Some((_, what)) => Err(Error::InvalidArgument(format!("IPSLAM parameters: {what}"))),
             None => Ok(()),
+        }
+    }
+
+    fn matching(&self) -> matching::MatchSettings {
+        matching::MatchSettings {
+            gate: self.match_gate,
+            end_margin: self.match_gate,
+            point_sigma: self.match_point_sigma,
+            iterations: 10,
+            min_matched: self.new_cluster_min_points.max(20),
         }
     }
 
@@ -171,6 +214,7 @@ impl IpslamParams {
             min_points: self.min_points,
             outlier_likelihood: self.outlier_likelihood,
             max_clusters: self.max_clusters_per_scan,
+            max_sigma: self.new_cluster_max_sigma,
         }
     }
 }
@@ -192,6 +236,9 @@ pub struct Ipslam<P: RobotPose> {
     mean: (P, DMatrix<f64>),
     /// The mean pose at the last processed scan.
     last_processed: Option<P>,
+    /// The `scan-match` proposal: the motion model's covariance accumulated since the last
+    /// processed scan (eq. 26 without the prior term), at the mean pose.
+    motion_covariance: DMatrix<f64>,
     scans_processed: usize,
     snapshot: OnceLock<FeatureMap>,
 }
@@ -206,12 +253,7 @@ impl<P: RobotPose> std::fmt::Debug for Ipslam<P> {
     }
 }
 
-/// The planar rigid transform of a pose: `(heading, translation)`.
-fn planar(pose: &Pose3) -> (f64, Vector2<f64>) {
-    let origin = pose.transform_point(&Vector3::zeros());
-    let ahead = pose.transform_point(&Vector3::x()) - origin;
-    (ahead.y.atan2(ahead.x), origin.xy())
-}
+use matching::planar;
 
 impl<P: RobotPose> Ipslam<P> {
     /// A filter whose particles all start at `pose` (the pose covariance spreads them as in
@@ -250,6 +292,7 @@ impl<P: RobotPose> Ipslam<P> {
             best: 0,
             mean: (pose, DMatrix::zeros(P::DIM, P::DIM)),
             last_processed: None,
+            motion_covariance: DMatrix::zeros(P::DIM, P::DIM),
             scans_processed: 0,
             snapshot: OnceLock::new(),
         };
@@ -269,6 +312,17 @@ impl<P: RobotPose> Ipslam<P> {
             .iter()
             .map(|(_, c)| *c)
             .collect()
+    }
+
+    /// The information of the `scan-match` prior on the sensor's `(x, y, heading)`: the
+    /// accumulated motion covariance's position and heading variances (the sensor's lever arm
+    /// neglected), floored at 1 cm and 0.2 degrees.
+    fn matching_prior(&self) -> Vector3<f64> {
+        let c = &self.motion_covariance;
+        let heading = if P::DIM == 3 { 2 } else { 3 };
+        let position = (0.5 * (c[(0, 0)] + c[(1, 1)])).max(1e-4);
+        let heading = c[(heading, heading)].max(0.2f64.to_radians().powi(2));
+        Vector3::new(1.0 / position, 1.0 / position, 1.0 / heading)
     }
 
     fn weighted_mean(&self) -> (P, DMatrix<f64>) {
@@ -301,6 +355,46 @@ struct ParticleStep {
     log_likelihood: f64,
     merged: usize,
     added: usize,
+}
+
+/// The `scan-match` proposal for one particle: the match of the scan to its own clusters
+/// under the prior `N(pose, diag(1 / prior_information))`, then a draw from the Gaussian of
+/// the match (from the prior where too few points match).
+fn match_to_own_map<P: RobotPose>(
+    particle: &mut Particle<P>,
+    params: &IpslamParams,
+    robot_from_sensor: &Pose3,
+    points: &[Vector2<f64>],
+    prior_information: &Vector3<f64>,
+    rng: &mut impl rand::Rng,
+) {
+    let start = planar(&particle.pose.world_from_sensor(robot_from_sensor));
+    let settings = params.matching();
+    let clusters = matching::reachable(
+        particle.map.iter().map(|(_, k)| k),
+        &start.1,
+        params.max_range + settings.gate + settings.end_margin,
+    );
+    let (centre, information) =
+        match matching::refine(&clusters, points, start, prior_information, &settings) {
+            Some(m) => ((m.heading, m.translation), m.information),
+            None => (start, Matrix3::from_diagonal(prior_information)),
+        };
+    // x = L^-T z has the covariance (L L^T)^-1.
+    let Some(cholesky) = information.cholesky() else {
+        return;
+    };
+    let z = Vector3::from_fn(|_, _| -> f64 { StandardNormal.sample(rng) });
+    let Some(offset) = cholesky.l().transpose().solve_upper_triangular(&z) else {
+        return;
+    };
+    let heading = centre.0 + offset.z;
+    let translation = centre.1 + offset.xy();
+    if let Some(moved) =
+        matching::move_sensor_to(&particle.pose, robot_from_sensor, heading, &translation)
+    {
+        particle.pose = moved;
+    }
 }
 
 /// Steps 1-4 of the module documentation for one particle.
@@ -401,10 +495,22 @@ impl<P: RobotPose> Estimator<P> for Ipslam<P> {
         "ipslam"
     }
 
-    /// Every particle draws its increment from the motion model (eq. 17).
+    /// Every particle draws its increment from the motion model (eq. 17); with the
+    /// `scan-match` proposal it takes the mean increment and the covariance accumulates.
     fn predict(&mut self, motion: &dyn MotionModel<P>) -> Result<()> {
         let poses: Vec<P> = self.particles.iter().map(|p| p.pose).collect();
-        let poses = sample_motion(&poses, motion, self.params.seed, self.draws)?;
+        let poses = if self.params.proposal == IpslamProposal::ScanMatch {
+            let prediction = motion.predict(&self.mean.0)?;
+            slam_core::ensure_finite(prediction.cov_control.as_slice(), "motion noise")?;
+            self.motion_covariance = prediction.propagate_covariance(&self.motion_covariance)?;
+            let control = motion.control();
+            poses
+                .iter()
+                .map(|pose| motion.apply_control(pose, &control))
+                .collect::<Result<Vec<P>>>()?
+        } else {
+            sample_motion(&poses, motion, self.params.seed, self.draws)?
+        };
         self.draws += 1;
         for (particle, pose) in self.particles.iter_mut().zip(poses) {
             particle.pose = pose;
@@ -440,11 +546,31 @@ impl<P: RobotPose> Estimator<P> for Ipslam<P> {
             .collect();
         let scan_clusters = ppca::gmeans(&points, &self.params.gmeans());
         let params = &self.params;
+        let prior = self.matching_prior();
+        let draw = self.draws;
+        if params.proposal == IpslamProposal::ScanMatch {
+            self.draws += 1;
+        }
         let steps: Vec<ParticleStep> = self
             .particles
             .par_iter_mut()
-            .map(|particle| process(particle, params, robot_from_sensor, &scan_clusters, &points))
+            .enumerate()
+            .map(|(index, particle)| {
+                if params.proposal == IpslamProposal::ScanMatch {
+                    let mut rng = crate::fastslam::stream(params.seed, draw, index as u64);
+                    match_to_own_map(
+                        particle,
+                        params,
+                        robot_from_sensor,
+                        &points,
+                        &prior,
+                        &mut rng,
+                    );
+                }
+                process(particle, params, robot_from_sensor, &scan_clusters, &points)
+            })
             .collect();
+        self.motion_covariance.fill(0.0);
         for (particle, step) in self.particles.iter_mut().zip(&steps) {
             particle.log_weight += self.params.likelihood_scale * step.log_likelihood;
         }

@@ -226,6 +226,9 @@ pub struct GMeansParams {
     pub outlier_likelihood: f64,
     /// Largest number of clusters per scan.
     pub max_clusters: usize,
+    /// A cluster whose non-principal deviation is above this, m, is split as well (an
+    /// addition: the residuals of a scattered group can look normal, but it is no line).
+    pub max_sigma: f64,
 }
 
 /// G-means with 1-D PPCA (section III-B): starting from one cluster of all points, each
@@ -246,7 +249,7 @@ pub fn gmeans(points: &[Vector2<f64>], params: &GMeansParams) -> Vec<(Cluster, V
             done.push(group);
             continue;
         };
-        if residuals_normal(&cluster, &group, params.critical_value) {
+        if is_line(&cluster, &group, params) {
             done.push(group);
             continue;
         }
@@ -283,6 +286,13 @@ pub fn gmeans(points: &[Vector2<f64>], params: &GMeansParams) -> Vec<(Cluster, V
         .into_iter()
         .filter_map(|m| Cluster::fit(&m).map(|c| (c, m)))
         .collect()
+}
+
+/// Whether a group is thin enough and its residuals across its principal direction pass the
+/// Anderson-Darling test.
+fn is_line(cluster: &Cluster, group: &[Vector2<f64>], params: &GMeansParams) -> bool {
+    cluster.sigma2.sqrt() <= params.max_sigma
+        && residuals_normal(cluster, group, params.critical_value)
 }
 
 /// Whether a group's residuals across its principal direction pass the Anderson-Darling
@@ -327,7 +337,7 @@ fn join_collinear(
                 let union: Vec<Vector2<f64>> =
                     groups[i].iter().chain(&groups[j]).copied().collect();
                 if let Some(c) = Cluster::fit(&union)
-                    && residuals_normal(&c, &union, params.critical_value)
+                    && is_line(&c, &union, params)
                 {
                     joined = Some((i, j, union));
                     break 'search;
@@ -545,6 +555,7 @@ mod tests {
             min_points: 8,
             outlier_likelihood: 0.01,
             max_clusters: 20,
+            max_sigma: 0.05,
         };
         let clusters = gmeans(&points, &params);
         assert!(

@@ -225,21 +225,10 @@ mod tests {
 
     /// Points of the room seen from `(x, y, heading)`, in the sensor frame.
     fn scan(x: f64, y: f64, heading: f64) -> Vec<Vector2<f64>> {
-        let origin = Vector2::new(x, y);
         (0..360)
             .map(|k| {
-                let angle = heading + (k as f64).to_radians();
-                let d = Vector2::new(angle.cos(), angle.sin());
-                let mut range = f64::INFINITY;
-                for (axis, value) in [(0, 0.0), (0, 10.0), (1, 0.0), (1, 6.0)] {
-                    if d[axis].abs() > 1e-12 {
-                        let t = (value - origin[axis]) / d[axis];
-                        if t > 0.0 {
-                            range = range.min(t);
-                        }
-                    }
-                }
                 let bearing = (k as f64).to_radians();
+                let range = crate::ipslam::tests::ray(Vector2::new(x, y), heading + bearing);
                 Vector2::new(range * bearing.cos(), range * bearing.sin())
             })
             .collect()

@@ -10,7 +10,7 @@ use slam_sensors::odometry::{Integration, Unicycle};
 use super::*;
 
 /// Range from `origin` along `angle` to the walls of the room `[0, 10] x [0, 6]`.
-fn ray(origin: Vector2<f64>, angle: f64) -> f64 {
+pub(crate) fn ray(origin: Vector2<f64>, angle: f64) -> f64 {
     let d = Vector2::new(angle.cos(), angle.sin());
     let mut best = f64::INFINITY;
     for (axis, value) in [(0, 0.0), (0, 10.0), (1, 0.0), (1, 6.0)] {

@@ -76,6 +76,9 @@ pub struct DataConfig {
     /// Replace the data's motion by odometry built from its reference poses with seeded
     /// noise (for logs without raw odometry, such as the Radish corrected logs).
     pub odometry_from_poses: Option<crate::data::PoseOdometryConfig>,
+    /// Replace the motion between consecutive scans by the match of the scans (ICP, the
+    /// motion as its prior); applied after `odometry_from_poses`.
+    pub laser_odometry: Option<slam_sensors::laser_odometry::LaserOdometryParams>,
 }
 
 impl DataConfig {
@@ -98,6 +101,7 @@ impl Default for DataConfig {
             victoria_park: Default::default(),
             mrclam: Default::default(),
             odometry_from_poses: None,
+            laser_odometry: None,
         }
     }
 }
@@ -363,6 +367,7 @@ mod tests {
             ("[data]\nspeck = \"sim\"\n", "speck"),
             ("[estimator]\ntype = \"ekf\"\ngate = 0.9\n", "gate"),
             ("[frontend]\nwals = true\n", "wals"),
+            ("[data.laser_odometry]\ngates = 0.3\n", "gates"),
             ("[frontend.lines]\nsplit = 1\n", "split"),
             ("[frontend.prior]\nname = \"polygonal\"\n", "name"),
             ("[frontend.prior.inference]\ngamma = 1.0\n", "gamma"),

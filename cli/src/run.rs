@@ -108,6 +108,19 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
         Some(noise) => crate::data::odometry_from_poses(dataset, noise, config.data.seed)?,
         None => dataset,
     };
+    let dataset = match &config.data.laser_odometry {
+        Some(params) => {
+            let (dataset, report) = slam_sensors::laser_odometry::laser_odometry(dataset, params)?;
+            if !quiet {
+                eprintln!(
+                    "laser odometry: {} scans matched, {} matches refused (odometry kept)",
+                    report.matched, report.refused
+                );
+            }
+            dataset
+        }
+        None => dataset,
+    };
     let name = dataset.name.clone();
     let landmarks = dataset.landmarks.clone();
     let bar = progress_bar(dataset.events.len(), quiet);

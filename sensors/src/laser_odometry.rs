@@ -1,0 +1,453 @@
+//! Laser odometry: each scan matched to the previous one by robust point-to-line ICP, with the
+//! wheel odometry between them as a Gaussian prior; the match replaces that odometry.
+//!
+//! A front-end of any estimator (`[data.laser_odometry]` in the `slam` config): the estimator
+//! sees ordinary [`PoseIncrement`]s, one per matched scan, whose covariance is the posterior of
+//! the match. The match (Gauss-Newton on `sum rho(n_i . (R p_i + t - q_i)) + prior`):
+//!
+//! - the reference points `q_i` are the previous scan's, each with the normal of the line
+//!   through it and its neighbours in beam order;
+//! - each current point `p_i` is paired with its nearest reference point within a gate; the
+//!   residual is the distance along that point's normal; `rho` is the Cauchy loss;
+//! - coarse to fine: the gate and the Cauchy scale start 4 times wider and halve at each
+//!   iteration;
+//! - the points' information is divided by `information_divisor`: neighbouring beams see the
+//!   same surfaces, so their errors are not independent, and a covariance from independent
+//!   points is overconfident.
+//!
+//! A match is refused (and the odometry kept) when too few points pair up, the normal equations
+//! are singular, or the match lies more than `max_mahalanobis` (squared) from the odometry under
+//! the odometry's covariance.
+
+use std::collections::HashMap;
+
+use serde::{Deserialize, Serialize};
+use slam_core::nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
+use slam_core::{Pose2, Pose3, wrap_angle};
+
+use crate::error::{Result, SensorError};
+use crate::events::{Dataset, Event, TimedEvent};
+use crate::odometry::PoseIncrement;
+
+/// Settings of the laser odometry; `Default` gives values that work on indoor SICK logs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LaserOdometryParams {
+    /// A current point pairs with a reference point within this distance, m.
+    pub gate: f64,
+    /// Deviation of a point from its partner's line, m (the Cauchy scale).
+    pub point_sigma: f64,
+    /// Readings farther than this are not used, m.
+    pub max_range: f64,
+    /// Gauss-Newton iterations at most.
+    pub iterations: usize,
+    /// Paired points needed for a match.
+    pub min_matched: usize,
+    /// The points' information is divided by this (their errors are correlated). The default
+    /// 10 makes the matches' normalized errors about right on the Intel lab log
+    /// (`cargo run --release --example laser_odometry_nees`).
+    pub information_divisor: f64,
+    /// A match farther than this squared Mahalanobis distance from the odometry (under the
+    /// odometry's covariance) is refused; the default is the 99.9 % point of chi-square(3).
+    pub max_mahalanobis: f64,
+}
+
+impl Default for LaserOdometryParams {
+    fn default() -> Self {
+        LaserOdometryParams {
+            gate: 0.3,
+            point_sigma: 0.05,
+            max_range: 20.0,
+            iterations: 30,
+            min_matched: 30,
+            information_divisor: 10.0,
+            max_mahalanobis: 16.27,
+        }
+    }
+}
+
+impl LaserOdometryParams {
+    /// Checks every value's range.
+    pub fn validate(&self) -> Result<()> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        let checks = [
+            (positive(self.gate), "gate > 0"),
+            (positive(self.point_sigma), "point_sigma > 0"),
+            (positive(self.max_range), "max_range > 0"),
+            (self.iterations >= 1, "iterations >= 1"),
+            (self.min_matched >= 3, "min_matched >= 3"),
+            (
+                positive(self.information_divisor),
+                "information_divisor > 0",
+            ),
+            (positive(self.max_mahalanobis), "max_mahalanobis > 0"),
+        ];
+        match checks.iter().find(|(ok, _)| !ok) {
+            Some((_, what)) => Err(SensorError::InvalidArgument(format!(
+                "laser odometry: {what}"
+            ))),
+            None => Ok(()),
+        }
+    }
+}
+
+/// A scan matched to a reference scan.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScanMatch {
+    /// The current scan's sensor pose in the reference scan's sensor frame.
+    pub reference_from_current: Pose2,
+    /// Its covariance (the posterior of points and prior).
+    pub covariance: Matrix3<f64>,
+    /// Points paired at the last iteration.
+    pub matched: usize,
+}
+
+/// What [`laser_odometry`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LaserOdometryReport {
+    /// Scans whose preceding odometry was replaced by a match.
+    pub matched: usize,
+    /// Scans whose match was refused; their odometry was kept.
+    pub refused: usize,
+}
+
+/// `(-v_y, v_x)`.
+fn perp(v: &Vector2<f64>) -> Vector2<f64> {
+    Vector2::new(-v.y, v.x)
+}
+
+/// Reference points with the unit normals of the lines through them and their neighbours in
+/// beam order (points without two neighbours within `reach` get none).
+fn with_normals(points: &[Vector2<f64>], reach: f64) -> Vec<(Vector2<f64>, Vector2<f64>)> {
+    let mut out = Vec::with_capacity(points.len());
+    for (i, p) in points.iter().enumerate() {
+        let lo = i.saturating_sub(2);
+        let hi = (i + 3).min(points.len());
+        let near: Vec<&Vector2<f64>> = points[lo..hi]
+            .iter()
+            .filter(|q| (*q - p).norm() <= reach)
+            .collect();
+        if near.len() < 3 {
+            continue;
+        }
+        let mean = near.iter().fold(Vector2::zeros(), |a, q| a + *q) / near.len() as f64;
+        let scatter = near.iter().fold(Matrix2::zeros(), |a, q| {
+            let d = *q - mean;
+            a + d * d.transpose()
+        });
+        let eigen = scatter.symmetric_eigen();
+        let smallest = if eigen.eigenvalues[0] <= eigen.eigenvalues[1] {
+            0
+        } else {
+            1
+        };
+        let normal: Vector2<f64> = eigen.eigenvectors.column(smallest).into_owned();
+        if normal.norm().is_finite() && normal.norm() > 0.0 {
+            out.push((*p, normal.normalize()));
+        }
+    }
+    out
+}
+
+/// A uniform grid over reference points for nearest-neighbour queries.
+struct Grid<'a> {
+    cell: f64,
+    cells: HashMap<(i64, i64), Vec<usize>>,
+    points: &'a [(Vector2<f64>, Vector2<f64>)],
+}
+
+impl<'a> Grid<'a> {
+    fn new(points: &'a [(Vector2<f64>, Vector2<f64>)], cell: f64) -> Self {
+        let mut cells: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+        for (i, (p, _)) in points.iter().enumerate() {
+            cells.entry(Self::key(p, cell)).or_default().push(i);
+        }
+        Grid {
+            cell,
+            cells,
+            points,
+        }
+    }
+
+    fn key(p: &Vector2<f64>, cell: f64) -> (i64, i64) {
+        ((p.x / cell).floor() as i64, (p.y / cell).floor() as i64)
+    }
+
+    /// The nearest point within the cell size of `z`.
+    fn nearest(&self, z: &Vector2<f64>) -> Option<&'a (Vector2<f64>, Vector2<f64>)> {
+        let (cx, cy) = Self::key(z, self.cell);
+        let mut best: Option<(f64, usize)> = None;
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                let Some(members) = self.cells.get(&(cx + dx, cy + dy)) else {
+                    continue;
+                };
+                for &i in members {
+                    let d = (self.points[i].0 - z).norm_squared();
+                    if d <= self.cell * self.cell && best.is_none_or(|(b, _)| d < b) {
+                        best = Some((d, i));
+                    }
+                }
+            }
+        }
+        best.map(|(_, i)| &self.points[i])
+    }
+}
+
+/// Matches `current` to `reference` (each in its own sensor frame), starting at and pulled
+/// towards `guess` (the current sensor pose in the reference sensor frame) with covariance
+/// `guess_covariance`. `Ok(None)` when too few points pair up or the normal equations are
+/// singular; an error for a non-finite or non-positive-definite `guess_covariance`.
+///
+/// ```
+/// use slam_core::{Pose2, nalgebra::{Matrix3, Vector2}};
+/// use slam_sensors::laser_odometry::{LaserOdometryParams, match_scans};
+/// // Two walls of a corner seen from (0, 0) and from 0.2 m further along x.
+/// let corner = |x0: f64| -> Vec<Vector2<f64>> {
+///     let mut points: Vec<Vector2<f64>> =
+///         (0..60).map(|i| Vector2::new(4.0 - x0, -2.0 + 0.05 * i as f64)).collect();
+///     points.extend((0..60).map(|i| Vector2::new(1.0 - x0 + 0.05 * i as f64, 1.0)));
+///     points
+/// };
+/// let guess = Pose2::new(0.15, 0.03, 0.01);
+/// let prior = Matrix3::from_diagonal(&[1.0, 1.0, 1.0].into());
+/// let matched = match_scans(&corner(0.0), &corner(0.2), &guess, &prior,
+///     &LaserOdometryParams::default()).unwrap().unwrap();
+/// assert!((matched.reference_from_current.x - 0.2).abs() < 2e-3);
+/// assert!(matched.reference_from_current.y.abs() < 2e-3);
+/// assert!(matched.reference_from_current.theta.abs() < 1e-3);
+/// ```
+pub fn match_scans(
+    reference: &[Vector2<f64>],
+    current: &[Vector2<f64>],
+    guess: &Pose2,
+    guess_covariance: &Matrix3<f64>,
+    params: &LaserOdometryParams,
+) -> Result<Option<ScanMatch>> {
+    params.validate()?;
+    slam_core::ensure_finite(guess.to_vector().as_slice(), "scan match guess")?;
+    slam_core::ensure_finite(guess_covariance.as_slice(), "scan match prior")?;
+    let prior_information = guess_covariance.try_inverse().ok_or_else(|| {
+        SensorError::InvalidArgument("scan match prior covariance is singular".into())
+    })?;
+    let reference = with_normals(reference, params.gate);
+    let offset = |pose: &Pose2| -> Vector3<f64> {
+        Vector3::new(
+            pose.x - guess.x,
+            pose.y - guess.y,
+            wrap_angle(pose.theta - guess.theta),
+        )
+    };
+    let mut pose = *guess;
+    let mut last: Option<(Matrix3<f64>, usize)> = None;
+    let mut grids: Vec<Grid> = Vec::new();
+    for iteration in 0..params.iterations {
+        let widening = (4.0 * 0.5f64.powi(iteration.min(8) as i32)).max(1.0);
+        let gate = params.gate * widening;
+        if grids.last().is_none_or(|g| g.cell != gate) {
+            grids.push(Grid::new(&reference, gate));
+        }
+        let grid = grids.last().expect("a grid was just pushed");
+        let scale = params.point_sigma * widening;
+        let weight = 1.0 / (scale * scale * params.information_divisor);
+        let rotation = pose.rotation();
+        let mut h = prior_information;
+        let mut g = prior_information * offset(&pose);
+        let mut matched = 0;
+        for p in current {
+            let arm = rotation * p;
+            let z = arm + pose.translation();
+            let Some((q, normal)) = grid.nearest(&z) else {
+                continue;
+            };
+            matched += 1;
+            let e = normal.dot(&(z - q));
+            let robust = 1.0 / (1.0 + (e / scale).powi(2));
+            let j = Vector3::new(normal.x, normal.y, normal.dot(&perp(&arm)));
+            h += j * j.transpose() * (robust * weight);
+            g += j * (e * robust * weight);
+        }
+        if matched < params.min_matched {
+            return Ok(None);
+        }
+        let Some(cholesky) = h.cholesky() else {
+            return Ok(None);
+        };
+        let step = -cholesky.solve(&g);
+        pose = Pose2::new(pose.x + step.x, pose.y + step.y, pose.theta + step.z);
+        last = Some((h, matched));
+        if widening == 1.0 && step.xy().norm() < 1e-6 && step.z.abs() < 1e-7 {
+            break;
+        }
+    }
+    let Some((information, matched)) = last else {
+        return Ok(None);
+    };
+    let Some(covariance) = information.try_inverse() else {
+        return Ok(None);
+    };
+    Ok(Some(ScanMatch {
+        reference_from_current: pose,
+        covariance: (covariance + covariance.transpose()) * 0.5,
+        matched,
+    }))
+}
+
+/// The planar part `(x, y, yaw)` of a laser mount; an error for a tilted laser.
+fn planar_mount(robot_from_sensor: &Pose3) -> Result<Pose2> {
+    let level = 1e-3;
+    if robot_from_sensor.pitch.abs() > level || robot_from_sensor.roll.abs() > level {
+        return Err(SensorError::InvalidArgument(format!(
+            "laser odometry needs a level laser; this one has pitch {:.3} and roll {:.3} rad",
+            robot_from_sensor.pitch, robot_from_sensor.roll
+        )));
+    }
+    let t = robot_from_sensor.translation;
+    Ok(Pose2::new(t.x, t.y, robot_from_sensor.yaw))
+}
+
+/// `outer ⊕ inner ⊕ ⊖outer` and its Jacobian with respect to `inner`: a motion expressed in
+/// the frame `outer` maps, e.g. a sensor increment to the robot's with `outer` the mount.
+fn conjugate(outer: &Pose2, inner: &Pose2) -> (Pose2, Matrix3<f64>) {
+    let (moved, _, d_moved_d_inner) = outer.compose_with_jacobians(inner);
+    let (result, d_result_d_moved, _) = moved.compose_with_jacobians(&outer.inverse());
+    (result, d_result_d_moved * d_moved_d_inner)
+}
+
+/// The compound of `motions` from the identity and its covariance (eq. 26 applied in turn).
+fn compound(motions: &[TimedEvent]) -> Result<(Pose2, Matrix3<f64>)> {
+    let mut pose = Pose2::identity();
+    let mut covariance = slam_core::nalgebra::DMatrix::zeros(3, 3);
+    for timed in motions {
+        if let Event::Motion(motion) = &timed.event {
+            let prediction = motion.predict(&pose)?;
+            covariance = prediction.propagate_covariance(&covariance)?;
+            pose = prediction.pose;
+        }
+    }
+    Ok((pose, Matrix3::from_iterator(covariance.iter().copied())))
+}
+
+/// Replaces the motion between consecutive scans by the match of the later scan to the
+/// earlier one (see the module documentation): the motion events since the previous scan
+/// become one [`PoseIncrement`] at the scan's time, just before it. Where the match is refused
+/// the motion events stay. Observations, images and GPS fixes need the pose at their own time:
+/// motion pending before one of them is written unchanged and the next scan starts a new chain.
+/// Scans from mounts other than the previous scan's (a second laser) also start a new chain.
+pub fn laser_odometry(
+    dataset: Dataset,
+    params: &LaserOdometryParams,
+) -> Result<(Dataset, LaserOdometryReport)> {
+    params.validate()?;
+    let Dataset {
+        name,
+        events,
+        clock,
+        landmarks,
+        skipped,
+    } = dataset;
+    let mut report = LaserOdometryReport::default();
+    let mut out = Vec::with_capacity(events.len());
+    let mut pending: Vec<TimedEvent> = Vec::new();
+    // The previous scan's points (sensor frame) and its planar mount.
+    let mut previous: Option<(Vec<Vector2<f64>>, Pose2)> = None;
+    for timed in events {
+        match &timed.event {
+            Event::Motion(_) => pending.push(timed),
+            Event::Scan {
+                scan,
+                robot_from_sensor,
+            } => {
+                let mount = planar_mount(robot_from_sensor)?;
+                let points: Vec<Vector2<f64>> = scan
+                    .points()
+                    .into_iter()
+                    .filter(|p| p.range <= params.max_range)
+                    .map(|p| p.position)
+                    .collect();
+                let chained = previous
+                    .as_ref()
+                    .filter(|(_, before)| before.to_vector() == mount.to_vector());
+                match chained {
+                    Some((reference, _)) if !pending.is_empty() => {
+                        match match_to_previous(reference, &points, &mount, &pending, params)? {
+                            Some(increment) => {
+                                pending.clear();
+                                out.push(TimedEvent {
+                                    time: timed.time,
+                                    event: Event::Motion(Box::new(increment)),
+                                });
+                                report.matched += 1;
+                            }
+                            None => {
+                                out.append(&mut pending);
+                                report.refused += 1;
+                            }
+                        }
+                    }
+                    _ => out.append(&mut pending),
+                }
+                previous = Some((points, mount));
+                out.push(timed);
+            }
+            Event::Observations(_) | Event::Image { .. } | Event::Gps(_) => {
+                if !pending.is_empty() {
+                    out.append(&mut pending);
+                    previous = None;
+                }
+                out.push(timed);
+            }
+            Event::GroundTruth { .. } => out.push(timed),
+        }
+    }
+    out.append(&mut pending);
+    Ok((
+        Dataset {
+            name,
+            events: out,
+            clock,
+            landmarks,
+            skipped,
+        },
+        report,
+    ))
+}
+
+/// The robot increment of the match of `current` to `reference`, the odometry `pending`
+/// between them as the prior; `None` if the match is refused.
+fn match_to_previous(
+    reference: &[Vector2<f64>],
+    current: &[Vector2<f64>],
+    robot_from_sensor: &Pose2,
+    pending: &[TimedEvent],
+    params: &LaserOdometryParams,
+) -> Result<Option<PoseIncrement>> {
+    let (odometry, odometry_covariance) = compound(pending)?;
+    // A floor keeps the prior invertible for a robot that stood still.
+    let floor = Matrix3::from_diagonal(&Vector3::new(1e-8, 1e-8, 1e-10));
+    let odometry_covariance = odometry_covariance + floor;
+    let sensor_from_robot = robot_from_sensor.inverse();
+    let (guess, d_guess) = conjugate(&sensor_from_robot, &odometry);
+    let guess_covariance = d_guess * odometry_covariance * d_guess.transpose();
+    let Some(matched) = match_scans(reference, current, &guess, &guess_covariance, params)? else {
+        return Ok(None);
+    };
+    let (increment, d_increment) = conjugate(robot_from_sensor, &matched.reference_from_current);
+    let covariance = d_increment * matched.covariance * d_increment.transpose();
+    let difference = Vector3::new(
+        increment.x - odometry.x,
+        increment.y - odometry.y,
+        wrap_angle(increment.theta - odometry.theta),
+    );
+    let Some(information) = odometry_covariance.try_inverse() else {
+        return Ok(None);
+    };
+    if difference.dot(&(information * difference)) > params.max_mahalanobis {
+        return Ok(None);
+    }
+    let covariance = (covariance + covariance.transpose()) * 0.5;
+    Ok(Some(PoseIncrement::new(increment, covariance)?))
+}
+
+#[cfg(test)]
+mod tests;

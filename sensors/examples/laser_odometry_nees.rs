@@ -31,10 +31,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Each scan's points (sensor frame) and the reference pose that follows it.
     let mut scans: Vec<(Vec<Vector2<f64>>, Pose2)> = Vec::new();
     let mut points: Option<Vec<Vector2<f64>>> = None;
+    let params = LaserOdometryParams::default();
     for timed in &dataset.events {
         match &timed.event {
             Event::Scan { scan, .. } => {
-                let params = LaserOdometryParams::default();
                 points = Some(
                     scan.points()
                         .into_iter()

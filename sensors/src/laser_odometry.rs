@@ -242,14 +242,15 @@ pub fn match_scans(
     };
     let mut pose = *guess;
     let mut last: Option<(Matrix3<f64>, usize)> = None;
-    let mut grids: Vec<Grid> = Vec::new();
+    let mut grid: Option<Grid> = None;
     for iteration in 0..params.iterations {
         let widening = (4.0 * 0.5f64.powi(iteration.min(8) as i32)).max(1.0);
         let gate = params.gate * widening;
-        if grids.last().is_none_or(|g| g.cell != gate) {
-            grids.push(Grid::new(&reference, gate));
-        }
-        let grid = grids.last().expect("a grid was just pushed");
+        // The grid's cell is the gate: rebuilt only while the gate narrows.
+        let grid = match grid.take() {
+            Some(g) if g.cell == gate => grid.insert(g),
+            _ => grid.insert(Grid::new(&reference, gate)),
+        };
         let scale = params.point_sigma * widening;
         let weight = 1.0 / (scale * scale * params.information_divisor);
         let rotation = pose.rotation();
@@ -341,13 +342,8 @@ pub fn laser_odometry(
     params: &LaserOdometryParams,
 ) -> Result<(Dataset, LaserOdometryReport)> {
     params.validate()?;
-    let Dataset {
-        name,
-        events,
-        clock,
-        landmarks,
-        skipped,
-    } = dataset;
+    let mut dataset = dataset;
+    let events = std::mem::take(&mut dataset.events);
     let mut report = LaserOdometryReport::default();
     let mut out = Vec::with_capacity(events.len());
     let mut pending: Vec<TimedEvent> = Vec::new();
@@ -403,16 +399,8 @@ pub fn laser_odometry(
         }
     }
     out.append(&mut pending);
-    Ok((
-        Dataset {
-            name,
-            events: out,
-            clock,
-            landmarks,
-            skipped,
-        },
-        report,
-    ))
+    dataset.events = out;
+    Ok((dataset, report))
 }
 
 /// The robot increment of the match of `current` to `reference`, the odometry `pending`

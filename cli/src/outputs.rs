@@ -1,5 +1,6 @@
 //! The standard outputs of `slam run`: `trajectory.tum`, `map.json`, `metrics.json`,
-//! `map.svg` and `map.png`, and the metrics they hold.
+//! `map.svg` and `map.png` (and `map_path.tum` for a particle filter), and the metrics they
+//! hold.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -488,8 +489,26 @@ pub struct TrajectoryErrors {
     pub alignment: Alignment,
 }
 
+/// The path the map belongs to as stamped 3-D poses (z = 0), where it is not the estimates'.
+pub fn map_path(result: &RunResult) -> Option<Vec<StampedPose>> {
+    result.map_path.as_ref().map(|path| {
+        path.iter()
+            .map(|(time, pose)| StampedPose {
+                time: *time,
+                pose: pose.to_pose3(0.0),
+            })
+            .collect()
+    })
+}
+
 /// ATE of the estimates against the truth poses (`True` preferred, else `Reference`).
 pub fn trajectory_errors(result: &RunResult) -> Result<Option<TrajectoryErrors>> {
+    path_errors(result, &trajectory(result))
+}
+
+/// ATE of `est` against the truth poses of `result` (`True` preferred, else `Reference`,
+/// else GPS fixes).
+pub fn path_errors(result: &RunResult, est: &[StampedPose]) -> Result<Option<TrajectoryErrors>> {
     let stamped = |kind: TruthKind| -> Vec<StampedPose> {
         result
             .truth
@@ -521,13 +540,12 @@ pub fn trajectory_errors(result: &RunResult) -> Result<Option<TrajectoryErrors>>
     if gt.len() < 3 {
         return Ok(None);
     }
-    let est = trajectory(result);
-    let pairs = associate(&gt, &est, max_dt);
+    let pairs = associate(&gt, est, max_dt);
     if pairs.len() < 3 {
         return Ok(None);
     }
-    let aligned = ate(&gt, &est, &pairs, AlignMode::Se3)?;
-    let unaligned = ate(&gt, &est, &pairs, AlignMode::None)?;
+    let aligned = ate(&gt, est, &pairs, AlignMode::Se3)?;
+    let unaligned = ate(&gt, est, &pairs, AlignMode::None)?;
     Ok(Some(TrajectoryErrors {
         ate_rmse_m: aligned.errors.rmse,
         ate_rmse_unaligned_m: unaligned.errors.rmse,
@@ -579,9 +597,13 @@ pub fn estimates_csv(result: &RunResult) -> String {
     text
 }
 
-/// Writes the estimated trajectory in TUM format.
+/// Writes the estimated trajectory in TUM format (`trajectory.tum`), and the map's path where
+/// it differs (`map_path.tum`).
 pub fn write_trajectory(dir: &Path, result: &RunResult) -> Result<()> {
     write_tum(&dir.join("trajectory.tum"), &trajectory(result))?;
+    if let Some(path) = map_path(result) {
+        write_tum(&dir.join("map_path.tum"), &path)?;
+    }
     Ok(())
 }
 
@@ -686,13 +708,23 @@ pub fn map_figure(result: &RunResult, context: &FigureContext) -> Figure {
         );
         figure.legend(format!("{} GPS fixes", result.gps.len()), palette::GPS);
     }
-    let path: Vec<_> = result
-        .estimates
-        .iter()
-        .map(|r| place(r.pose.translation()))
-        .collect();
+    // A particle filter's map belongs to one particle's path, drawn instead of the mean.
+    let (path, label): (Vec<_>, _) = match &result.map_path {
+        Some(path) => (
+            path.iter().map(|(_, p)| place(p.translation())).collect(),
+            "path of the map's particle",
+        ),
+        None => (
+            result
+                .estimates
+                .iter()
+                .map(|r| place(r.pose.translation()))
+                .collect(),
+            "estimated path",
+        ),
+    };
     figure.polyline(path, palette::PATH, 2);
-    figure.legend("estimated path", palette::PATH);
+    figure.legend(label, palette::PATH);
     draw_features(&mut figure, result, &place);
     figure
 }

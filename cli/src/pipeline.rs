@@ -41,6 +41,9 @@ pub struct RunResult {
     pub estimator: Box<dyn Estimator<Pose2>>,
     /// The estimate after every time step.
     pub estimates: Vec<Record>,
+    /// The path the map belongs to, at the times of `estimates`, where it is not theirs (a
+    /// particle filter: the path of the particle whose map is kept).
+    pub map_path: Option<Vec<(f64, Pose2)>>,
     /// Ground truth or reference poses of the data.
     pub truth: Vec<(f64, Pose2, TruthKind)>,
     /// GPS fixes of the data.
@@ -218,6 +221,7 @@ pub fn run(
             nis.extend(report.nis);
         }
         if iter.peek().is_none_or(|next| next.time != time) {
+            estimator.end_step();
             let c = estimator.pose_covariance();
             estimates.push(Record {
                 time,
@@ -228,9 +232,28 @@ pub fn run(
         progress.inc(1);
     }
     progress.finish_and_clear();
+    let map_path = match estimator.map_path() {
+        Some(path) if path.len() == estimates.len() => Some(
+            estimates
+                .iter()
+                .zip(path)
+                .map(|(record, pose)| (record.time, pose))
+                .collect(),
+        ),
+        Some(path) => {
+            return Err(CliError::Usage(format!(
+                "the {} estimator recorded {} poses of its map's path for {} steps",
+                estimator.name(),
+                path.len(),
+                estimates.len()
+            )));
+        }
+        None => None,
+    };
     Ok(RunResult {
         estimator,
         estimates,
+        map_path,
         truth,
         gps,
         nis,

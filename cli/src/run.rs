@@ -13,8 +13,8 @@ use crate::eval::{Alignment, ErrorStats, umeyama};
 use crate::frontend::FrontendCounts;
 use crate::outputs::{
     ChiSquareSummary, FigureContext, MapError, chi_square_summary, estimates_csv, feature_counts,
-    map_error_against_landmarks, map_error_against_truth, map_figure, map_json, pose_nees,
-    trajectory_errors, write_text, write_trajectory,
+    map_error_against_landmarks, map_error_against_truth, map_figure, map_json, map_path,
+    path_errors, pose_nees, trajectory_errors, write_text, write_trajectory,
 };
 use crate::pipeline::{self, RunResult, UpdateTotals, progress_bar};
 
@@ -54,6 +54,9 @@ struct Metrics {
     ate_rmse_unaligned_m: Option<f64>,
     ate_against: Option<&'static str>,
     ate: Option<ErrorStats>,
+    /// ATE (aligned RMSE) of the path the map belongs to, where it is not the estimates' (a
+    /// particle filter: the path of the particle whose map is kept), m.
+    map_path_ate_rmse_m: Option<f64>,
     /// Map error after the trajectory's ATE alignment (where the map is compared with a
     /// true map), m.
     map_error_m: Option<f64>,
@@ -169,6 +172,10 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
         ate_rmse_unaligned_m: trajectory.as_ref().map(|t| t.ate_rmse_unaligned_m),
         ate_against: trajectory.as_ref().map(|t| t.against),
         ate: trajectory.as_ref().map(|t| t.ate),
+        map_path_ate_rmse_m: match map_path(&result) {
+            Some(path) => path_errors(&result, &path)?.map(|t| t.ate_rmse_m),
+            None => None,
+        },
         map_error_m: map_error.as_ref().map(|m| m.rms_m),
         map_error_unaligned_m: map_error_unaligned,
         map_error,
@@ -366,6 +373,9 @@ mod tests {
         let trajectory =
             slam_sensors::data::read_tum(&dir.path().join("out/trajectory.tum")).unwrap();
         assert_eq!(trajectory.len() as u64, metrics["steps"].as_u64().unwrap());
+        // An EKF's map belongs to its estimates: no separate map path.
+        assert!(metrics["map_path_ate_rmse_m"].is_null());
+        assert!(!dir.path().join("out/map_path.tum").exists());
     }
 
     #[test]
@@ -395,6 +405,11 @@ mod tests {
                     metrics["map_error_m"].as_f64().is_some(),
                     "{estimator}: no map error"
                 );
+                // The path of the map's particle, one pose per step.
+                let map_path = slam_sensors::data::read_tum(&out.join("map_path.tum")).unwrap();
+                assert_eq!(map_path.len() as u64, metrics["steps"].as_u64().unwrap());
+                let map_path_ate = metrics["map_path_ate_rmse_m"].as_f64().unwrap();
+                assert!(map_path_ate < 1.0, "{estimator}: map path ATE {map_path_ate}");
                 trajectories.push(std::fs::read_to_string(out.join("trajectory.tum")).unwrap());
             }
             assert_eq!(

@@ -16,6 +16,7 @@
 
 #![warn(missing_docs)]
 
+mod ancestry;
 mod covariance;
 pub mod ekf;
 pub mod em_polygon;

@@ -81,6 +81,18 @@ pub trait Estimator<P: RobotPose> {
         )))
     }
 
+    /// Ends one time step (the caller records the estimate once per step): a particle filter
+    /// appends each particle's pose to that particle's path. Default: nothing.
+    fn end_step(&mut self) {}
+
+    /// The path the map belongs to, one pose per [`end_step`](Estimator::end_step), oldest
+    /// first: for a particle filter, the path of the particle whose map [`map`](Estimator::map)
+    /// returns (a sample, not the weighted mean of [`pose`](Estimator::pose)). `None` (the
+    /// default) when the poses of [`pose`](Estimator::pose) are that path (an EKF).
+    fn map_path(&self) -> Option<Vec<P>> {
+        None
+    }
+
     /// The landmark id the data gave a feature (known data association), if any.
     fn landmark_id(&self, id: crate::FeatureId) -> Option<u64> {
         let _ = id;

@@ -41,6 +41,7 @@ use slam_core::{
     linearize,
 };
 
+use crate::ancestry::Ancestry;
 use crate::lifecycle::{
     BoundingBox, growth_prior, placed_by_triangulation, ready_subspace, stack_priors,
 };
@@ -194,6 +195,8 @@ struct Particle<P> {
     /// FastSLAM 2.0: the pose covariance accumulated by predictions since the pose was last
     /// drawn (the pose is their mean meanwhile).
     pending: Option<DMatrix<f64>>,
+    /// Its pose at every step so far (shared with its ancestors').
+    path: Ancestry<P>,
 }
 
 /// What a particle decided for one observation.
@@ -443,6 +446,7 @@ impl<P: RobotPose> FastSlam<P> {
                 ids: Arc::new(BTreeMap::new()),
                 tentative: Vec::new(),
                 pending: None,
+                path: Ancestry::default(),
             });
         }
         let mut gates = BTreeMap::new();
@@ -1228,6 +1232,18 @@ impl<P: RobotPose> Estimator<P> for FastSlam<P> {
 
     fn landmark_id(&self, id: FeatureId) -> Option<u64> {
         self.landmark_of(id).and_then(|l| l.landmark_id)
+    }
+
+    fn end_step(&mut self) {
+        for particle in &mut self.particles {
+            particle.path.push(particle.pose);
+        }
+    }
+
+    /// The path of the particle with the largest weight (whose map [`map`](Estimator::map)
+    /// returns).
+    fn map_path(&self) -> Option<Vec<P>> {
+        Some(self.best_particle().path.to_vec())
     }
 }
 

@@ -137,6 +137,49 @@ fn known_ids_map_every_landmark_close_to_the_truth() {
 }
 
 #[test]
+fn the_map_path_is_one_particle_s_path_through_every_step() {
+    let world = world(60, true, 3);
+    // One particle: its path is the estimate after every step.
+    let mut single = FastSlam::new(Pose2::identity(), DMatrix::zeros(3, 3), small(1)).unwrap();
+    let mut estimates = Vec::new();
+    for (motion, observations, _) in &world.steps {
+        single.predict(motion).unwrap();
+        single.update(observations).unwrap();
+        single.end_step();
+        estimates.push(single.pose());
+    }
+    let path = single.map_path().unwrap();
+    assert_eq!(path.len(), estimates.len());
+    for (recorded, estimate) in path.iter().zip(&estimates) {
+        assert!((recorded.to_vector() - estimate.to_vector()).norm() < 1e-12);
+    }
+    // Many particles, resampled at every step: the path follows the truth and ends inside
+    // the particle cloud.
+    let params = FastSlamParams {
+        resample_threshold: 1.0,
+        ..small(20)
+    };
+    let mut filter = FastSlam::new(Pose2::identity(), DMatrix::zeros(3, 3), params).unwrap();
+    for (motion, observations, _) in &world.steps {
+        filter.predict(motion).unwrap();
+        filter.update(observations).unwrap();
+        filter.end_step();
+    }
+    let path = filter.map_path().unwrap();
+    assert_eq!(path.len(), world.steps.len());
+    for (k, (pose, (_, _, truth))) in path.iter().zip(&world.steps).enumerate() {
+        let error = (pose.translation() - truth.translation()).norm();
+        assert!(error < 0.3, "step {k}: error {error}");
+    }
+    let mean = filter.pose();
+    let last = path[path.len() - 1];
+    let spread = filter.pose_covariance();
+    let offset = (last.translation() - mean.translation()).norm();
+    let sigma = (spread[(0, 0)] + spread[(1, 1)]).sqrt();
+    assert!(offset <= 4.0 * sigma + 1e-9, "{offset} m from the mean, spread {sigma} m");
+}
+
+#[test]
 fn the_improved_proposal_tracks_with_few_particles() {
     let world = world(60, false, 4);
     let params = FastSlamParams {

@@ -48,6 +48,7 @@ use slam_core::{
     RowOwner, UpdateReport,
 };
 
+use crate::ancestry::Ancestry;
 use crate::fastslam::pvec::PVec;
 use crate::fastslam::{resample_indices, sample_motion, weighted_mean};
 pub use ppca::{Cluster, GMeansParams};
@@ -224,6 +225,8 @@ struct Particle<P> {
     pose: P,
     log_weight: f64,
     map: PVec<Cluster>,
+    /// Its pose at every step so far (shared with its ancestors').
+    path: Ancestry<P>,
 }
 
 /// IPSLAM over robot poses of type `P` (see the module documentation).
@@ -282,6 +285,7 @@ impl<P: RobotPose> Ipslam<P> {
                 pose,
                 log_weight: 0.0,
                 map: PVec::default(),
+                path: Ancestry::default(),
             })
             .collect();
         let mut filter = Ipslam {
@@ -636,6 +640,18 @@ impl<P: RobotPose> Estimator<P> for Ipslam<P> {
     fn row_covariance(&self, owner: RowOwner) -> Option<DMatrix<f64>> {
         let _ = owner;
         None
+    }
+
+    fn end_step(&mut self) {
+        for particle in &mut self.particles {
+            particle.path.push(particle.pose);
+        }
+    }
+
+    /// The path of the particle with the largest weight (whose clusters
+    /// [`map`](Estimator::map) returns).
+    fn map_path(&self) -> Option<Vec<P>> {
+        Some(self.particles[self.best].path.to_vec())
     }
 }
 

@@ -1,0 +1,99 @@
+//! A particle's path: its pose at every recorded step, shared with its ancestors' after
+//! resampling (a persistent list of `Arc`s), so that copying a particle is O(1) and the
+//! particles' paths together cost memory only where they differ.
+
+use std::sync::Arc;
+
+/// One recorded pose and the path before it.
+#[derive(Debug)]
+struct Node<P> {
+    pose: P,
+    /// Poses recorded up to and including this one.
+    len: usize,
+    before: Option<Arc<Node<P>>>,
+}
+
+/// The poses a particle recorded, oldest first; clones share their nodes.
+#[derive(Clone, Debug)]
+pub(crate) struct Ancestry<P> {
+    last: Option<Arc<Node<P>>>,
+}
+
+impl<P> Default for Ancestry<P> {
+    fn default() -> Self {
+        Ancestry { last: None }
+    }
+}
+
+impl<P: Copy> Ancestry<P> {
+    /// Appends `pose`.
+    pub(crate) fn push(&mut self, pose: P) {
+        let before = self.last.take();
+        let len = before.as_ref().map_or(0, |n| n.len) + 1;
+        self.last = Some(Arc::new(Node { pose, len, before }));
+    }
+
+    /// Number of recorded poses.
+    pub(crate) fn len(&self) -> usize {
+        self.last.as_ref().map_or(0, |n| n.len)
+    }
+
+    /// The recorded poses, oldest first.
+    pub(crate) fn to_vec(&self) -> Vec<P> {
+        let mut poses = Vec::with_capacity(self.len());
+        let mut node = self.last.as_deref();
+        while let Some(n) = node {
+            poses.push(n.pose);
+            node = n.before.as_deref();
+        }
+        poses.reverse();
+        poses
+    }
+}
+
+impl<P> Drop for Ancestry<P> {
+    /// Frees the nodes no other path shares one at a time: a recursive drop of a long path
+    /// would overflow the stack.
+    fn drop(&mut self) {
+        let mut next = self.last.take();
+        while let Some(node) = next {
+            match Arc::try_unwrap(node) {
+                Ok(mut owned) => next = owned.before.take(),
+                Err(_) => break,
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clones_share_the_past_and_diverge_after() {
+        let mut parent = Ancestry::default();
+        for i in 0..3 {
+            parent.push(i);
+        }
+        let mut child = parent.clone();
+        child.push(10);
+        parent.push(20);
+        assert_eq!(parent.to_vec(), vec![0, 1, 2, 20]);
+        assert_eq!(child.to_vec(), vec![0, 1, 2, 10]);
+        assert_eq!(child.len(), 4);
+        drop(parent);
+        assert_eq!(child.to_vec(), vec![0, 1, 2, 10]);
+    }
+
+    #[test]
+    fn a_long_path_drops_without_overflowing_the_stack() {
+        let mut path = Ancestry::default();
+        for i in 0..1_000_000u32 {
+            path.push(i);
+        }
+        let shared = path.clone();
+        assert_eq!(shared.len(), 1_000_000);
+        drop(path);
+        drop(shared);
+    }
+}

@@ -409,7 +409,10 @@ mod tests {
                 let map_path = slam_sensors::data::read_tum(&out.join("map_path.tum")).unwrap();
                 assert_eq!(map_path.len() as u64, metrics["steps"].as_u64().unwrap());
                 let map_path_ate = metrics["map_path_ate_rmse_m"].as_f64().unwrap();
-                assert!(map_path_ate < 1.0, "{estimator}: map path ATE {map_path_ate}");
+                assert!(
+                    map_path_ate < 1.0,
+                    "{estimator}: map path ATE {map_path_ate}"
+                );
                 trajectories.push(std::fs::read_to_string(out.join("trajectory.tum")).unwrap());
             }
             assert_eq!(

@@ -176,7 +176,10 @@ fn the_map_path_is_one_particle_s_path_through_every_step() {
     let spread = filter.pose_covariance();
     let offset = (last.translation() - mean.translation()).norm();
     let sigma = (spread[(0, 0)] + spread[(1, 1)]).sqrt();
-    assert!(offset <= 4.0 * sigma + 1e-9, "{offset} m from the mean, spread {sigma} m");
+    assert!(
+        offset <= 4.0 * sigma + 1e-9,
+        "{offset} m from the mean, spread {sigma} m"
+    );
 }
 
 #[test]

@@ -205,7 +205,7 @@ pub fn pose_nees(result: &RunResult) -> Vec<(f64, f64)> {
         .iter()
         .filter_map(|r| {
             let truth = truth.get(&r.time.to_bits())?;
-            let e = slam_estimators::pose_error(truth, &r.pose);
+            let e = slam_core::RobotPose::ominus(truth, &r.pose);
             let e = Vector3::new(e[0], e[1], e[2]);
             // A pose known exactly (the start) has no NEES.
             let cholesky = r.covariance.cholesky()?;

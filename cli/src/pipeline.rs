@@ -74,24 +74,40 @@ pub fn make_estimator(
         EstimatorConfig::FastSlam(params) => {
             Ok(Box::new(FastSlam::new(pose, covariance, params.clone())?))
         }
-        EstimatorConfig::Ipslam(params) => {
-            let factory: slam_estimators::ClusterFeatureFactory = std::sync::Arc::new(|c| {
-                let line = slam_features::PpcaLine::from_cluster(
-                    c.mean,
-                    c.direction,
-                    c.principal_variance,
-                    c.sigma2,
-                    c.count,
-                )?;
-                Ok(Box::new(line) as Box<dyn slam_core::Feature>)
-            });
-            Ok(Box::new(Ipslam::new(
-                pose,
-                covariance,
-                params.clone(),
-                factory,
-            )?))
-        }
+        EstimatorConfig::Ipslam(params) => Ok(Box::new(Ipslam::new(
+            pose,
+            covariance,
+            params.clone(),
+            std::sync::Arc::new(PpcaLines),
+        )?)),
+    }
+}
+
+/// IPSLAM's line maps as `slam_features::PpcaLine`s, its scan points as
+/// `slam_sensors::models::LinePoint` observations.
+struct PpcaLines;
+
+impl slam_estimators::LineMapTypes for PpcaLines {
+    fn cluster_feature(
+        &self,
+        c: &slam_estimators::Cluster,
+    ) -> slam_core::Result<Box<dyn slam_core::Feature>> {
+        let line = slam_features::PpcaLine::from_cluster(
+            c.mean,
+            c.direction,
+            c.principal_variance,
+            c.sigma2,
+            c.count,
+        )?;
+        Ok(Box::new(line))
+    }
+
+    fn scan_point(&self, observation: &slam_core::Observation) -> Option<Vector2<f64>> {
+        observation
+            .measurement
+            .as_any()
+            .downcast_ref::<slam_sensors::models::LinePoint>()
+            .map(|p| p.point)
     }
 }
 
@@ -171,19 +187,20 @@ pub fn run(
             Event::Scan {
                 scan,
                 robot_from_sensor,
-            } if estimator.uses_scan_points() => {
-                let points: Vec<Vector2<f64>> = scan
-                    .points()
-                    .iter()
-                    .map(|p| Vector2::new(p.range * p.bearing.cos(), p.range * p.bearing.sin()))
-                    .collect();
-                let report = estimator
-                    .update_points(&robot_from_sensor, &points)
-                    .map_err(|e| at_time(time, "update", e))?;
-                updates.associated += report.associated;
-                updates.new_features += report.new_features;
-                Vec::new()
-            }
+            } if matches!(config.estimator, EstimatorConfig::Ipslam(_)) => scan
+                .points()
+                .iter()
+                .filter_map(|p| {
+                    let point = Vector2::new(p.range * p.bearing.cos(), p.range * p.bearing.sin());
+                    slam_sensors::models::LinePoint::new(point, sigma_range)
+                        .ok()
+                        .map(|m| slam_core::Observation {
+                            robot_from_sensor,
+                            measurement: Box::new(m),
+                            landmark_id: None,
+                        })
+                })
+                .collect(),
             Event::Scan {
                 scan,
                 robot_from_sensor,

@@ -1,30 +1,42 @@
 //! # slam-estimators
 //!
 //! SLAM estimators written against the `slam-core` traits only: this crate depends on no
-//! feature type and no sensor (DESIGN.md, invariant 1).
+//! feature type and no sensor (DESIGN.md, invariant 1). The folders read as the
+//! architecture:
 //!
-//! - [`Ekf`]: the M-space EKF of the paper's section V, with feature lifecycle, data
-//!   association (nearest neighbour or JCBB), triangulation and shared corners.
-//! - [`em_polygon`]: polygonal approximation of registered laser points by split-and-merge
-//!   EM segment fitting (Latecki & Lakaemper 2006), a post-processing estimator.
-//! - [`FastSlam`]: FastSLAM 1.0 whose particles carry maps of the same features, each with a
-//!   small EKF over its M-space perturbation, sharing features after resampling.
+//! - [`association`]: which feature an observation is of (gated nearest neighbour, JCBB),
+//!   shared by the EKF and by every particle.
+//! - [`lifecycle`]: tentative features, growth of the M-space, triangulation, extension,
+//!   removal and shared corners, shared by the EKF and FastSLAM.
+//! - `particles`: weights, seeded streams, sampling, resampling and paths, shared by the
+//!   particle filters.
+//! - [`DeadReckoning`]: the motion model alone, the baseline.
+//! - [`Ekf`]: the M-space EKF of the paper's section V.
+//! - [`FastSlam`]: FastSLAM 1.0 and 2.0 whose particles carry maps of the same features,
+//!   each with a small EKF over its M-space perturbation, sharing features after resampling.
 //! - [`Ipslam`]: Brunskill & Roy's IPSLAM, particles carrying maps of 1-D PPCA line clusters
-//!   built from raw scan points (G-means, incremental PCA).
+//!   built from the raw scan points (G-means, incremental PCA).
+//! - [`em_polygon`]: polygonal approximation of registered laser points by split-and-merge
+//!   EM segment fitting (Latecki & Lakaemper 2006), a post-processing stage.
 //!
-//! Errors are [`slam_core::Error`], the error of the [`slam_core::Estimator`] trait.
+//! Errors are [`slam_core::Error`], the error of the [`slam_core::Estimator`] trait; what an
+//! update leaves out is counted by reason in its [`slam_core::UpdateReport`].
 
 #![warn(missing_docs)]
 
-mod ancestry;
-mod covariance;
+pub mod association;
+mod dead_reckoning;
 pub mod ekf;
 pub mod em_polygon;
 pub mod fastslam;
 pub mod ipslam;
-mod lifecycle;
+pub mod lifecycle;
+mod particles;
 
-pub use ekf::{Association, Ekf, EkfParams, pose_error};
+pub use association::{Association, AssociationSettings};
+pub use dead_reckoning::{DeadReckoning, DeadReckoningParams};
+pub use ekf::{Ekf, EkfParams};
 pub use em_polygon::{EmPolygonParams, PolygonMap, fit_polygons};
 pub use fastslam::{FastSlam, FastSlamParams, Proposal};
-pub use ipslam::{ClusterFeatureFactory, Ipslam, IpslamParams, IpslamProposal};
+pub use ipslam::{Cluster, Ipslam, IpslamParams, IpslamProposal, LineMapTypes};
+pub use lifecycle::LifecycleSettings;

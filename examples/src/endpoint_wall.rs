@@ -8,8 +8,8 @@
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{DMatrix, DVector, Vector2};
 use slam_core::{
-    CoordBlock, Coordinates, Error, Feature, Growth, Innovation, MeasurementModel, Pose3, Result,
-    Subspace,
+    CoordBlock, Coordinates, Error, Feature, Growth, Ink, Innovation, Mark, MeasurementModel,
+    Pose3, Result, Shape, Sketch, Subspace,
 };
 use slam_features::Wall;
 use slam_sensors::models::WallObservation;
@@ -116,6 +116,31 @@ impl EndpointWall {
 
 #[typetag::serde(name = "endpoint-wall")]
 impl Feature for EndpointWall {
+    fn shape(&self) -> Option<Shape> {
+        Some(Shape::Wall {
+            start: self.start(),
+            end: self.end(),
+        })
+    }
+
+    /// The segment with the 95 % ellipses of both ends (both are in the state).
+    fn sketch(&self) -> Sketch {
+        let ellipse = |offset, at| Mark::Ellipse {
+            offset,
+            at,
+            ink: Ink::Corner,
+        };
+        Sketch::new("endpoint walls", Ink::Wall)
+            .with(Mark::Segment {
+                from: self.start(),
+                to: self.end(),
+                ink: Ink::Wall,
+                width: 4,
+            })
+            .with(ellipse(0, self.start()))
+            .with(ellipse(2, self.end()))
+    }
+
     fn kind(&self) -> &'static str {
         "endpoint-wall"
     }

@@ -3,7 +3,10 @@
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{DMatrix, Vector2, Vector3};
-use slam_core::{CoordBlock, Coordinates, Error, Feature, Growth, Result, Subspace, stack_rows};
+use slam_core::{
+    CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch, Subspace,
+    stack_rows,
+};
 
 use crate::geometry::Segment2;
 
@@ -238,6 +241,28 @@ impl HLine {
 
 #[typetag::serde(name = "hline")]
 impl Feature for HLine {
+    /// Scored once placed in every direction (dimension 3).
+    fn shape(&self) -> Option<Shape> {
+        (self.mspace_dim() >= 3).then(|| Shape::Line {
+            start: self.start(),
+            end: self.end(),
+        })
+    }
+
+    fn sketch(&self) -> Sketch {
+        let (ink, width, label) = if self.mspace_dim() >= 3 {
+            (Ink::Ceiling, 3, "ceiling lines (dim 3)")
+        } else {
+            (Ink::CeilingDirection, 1, "ceiling lines, direction only")
+        };
+        Sketch::new(label, ink).with(Mark::Segment {
+            from: self.start().xy(),
+            to: self.end().xy(),
+            ink,
+            width,
+        })
+    }
+
     fn kind(&self) -> &'static str {
         "hline"
     }

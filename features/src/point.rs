@@ -2,7 +2,10 @@
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{DMatrix, Vector3};
-use slam_core::{CoordBlock, Coordinates, Error, Feature, Growth, Result, Subspace, stack_rows};
+use slam_core::{
+    CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch, Subspace,
+    stack_rows,
+};
 
 /// x and y of the point.
 pub const HORIZONTAL: Subspace = Subspace {
@@ -128,6 +131,35 @@ impl Point {
 
 #[typetag::serde(name = "point")]
 impl Feature for Point {
+    /// A 3-D point once placed in every direction, else a point of the floor plane.
+    fn shape(&self) -> Option<Shape> {
+        let position = self.position();
+        Some(if self.mspace_dim() >= 3 {
+            Shape::Point { position }
+        } else {
+            Shape::PlanarPoint {
+                position: position.xy(),
+            }
+        })
+    }
+
+    fn sketch(&self) -> Sketch {
+        let ink = if self.mspace_dim() >= 3 {
+            Ink::Ceiling
+        } else {
+            Ink::Point
+        };
+        let at = self.position().xy();
+        Sketch::new("points and lamps", ink)
+            .with(Mark::Marker {
+                at,
+                ink,
+                size: 7,
+                filled: true,
+            })
+            .with(Mark::Ellipse { offset: 0, at, ink })
+    }
+
     fn kind(&self) -> &'static str {
         "point"
     }

@@ -3,7 +3,9 @@
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{DMatrix, Vector2};
-use slam_core::{CoordBlock, Coordinates, Error, Feature, Growth, Result, Subspace};
+use slam_core::{
+    CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch, Subspace,
+};
 
 /// Radius and centre, gained together.
 pub const FULL: Subspace = Subspace {
@@ -113,6 +115,29 @@ impl Pole {
 
 #[typetag::serde(name = "pole")]
 impl Feature for Pole {
+    fn shape(&self) -> Option<Shape> {
+        Some(Shape::Pole {
+            centre: self.centre(),
+            radius: self.radius(),
+        })
+    }
+
+    fn sketch(&self) -> Sketch {
+        let centre = self.centre();
+        Sketch::new("poles", Ink::Pole)
+            .with(Mark::Circle {
+                centre,
+                radius: self.radius(),
+                ink: Ink::Pole,
+                filled: true,
+            })
+            .with(Mark::Ellipse {
+                offset: 1,
+                at: centre,
+                ink: Ink::Pole,
+            })
+    }
+
     fn kind(&self) -> &'static str {
         "pole"
     }

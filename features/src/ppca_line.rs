@@ -6,7 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{DMatrix, Vector2};
-use slam_core::{Coordinates, Error, Feature, Growth, Result, Subspace};
+use slam_core::{Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch, Subspace};
 
 use crate::Wall;
 
@@ -117,6 +117,22 @@ impl PpcaLine {
 
 #[typetag::serde(name = "ppca-line")]
 impl Feature for PpcaLine {
+    fn shape(&self) -> Option<Shape> {
+        Some(Shape::Wall {
+            start: self.start(),
+            end: self.end(),
+        })
+    }
+
+    fn sketch(&self) -> Sketch {
+        Sketch::new("PPCA lines (IPSLAM clusters)", Ink::Wall).with(Mark::Segment {
+            from: self.start(),
+            to: self.end(),
+            ink: Ink::Wall,
+            width: 3,
+        })
+    }
+
     fn kind(&self) -> &'static str {
         "ppca-line"
     }

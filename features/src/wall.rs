@@ -4,7 +4,8 @@
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{DMatrix, Vector2};
 use slam_core::{
-    CoordBlock, Coordinates, Error, Feature, Growth, Result, Subspace, ensure_finite, stack_rows,
+    CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch, Subspace,
+    ensure_finite, stack_rows,
 };
 
 use crate::geometry::Segment2;
@@ -359,6 +360,49 @@ fn end_row(end: usize, v: Vector2<f64>) -> DMatrix<f64> {
 
 #[typetag::serde(name = "wall")]
 impl Feature for Wall {
+    fn shape(&self) -> Option<Shape> {
+        Some(Shape::Wall {
+            start: self.start(),
+            end: self.end(),
+        })
+    }
+
+    /// The segment (strong once an end or a corner is estimated), with a marker and the 95 %
+    /// ellipse at each estimated end (filled where the end is a shared corner).
+    fn sketch(&self) -> Sketch {
+        let shared_dims = 2 * (0..2).filter(|&k| self.is_shared(k)).count();
+        let (ink, label) = if self.mspace_dim() + shared_dims >= 3 {
+            (Ink::Wall, "walls with an estimated end or corner")
+        } else {
+            (Ink::WallLineOnly, "walls, line only (dim 2)")
+        };
+        let mut sketch = Sketch::new(label, ink).with(Mark::Segment {
+            from: self.start(),
+            to: self.end(),
+            ink,
+            width: 4,
+        });
+        for (k, end) in [self.start(), self.end()].into_iter().enumerate() {
+            let subspace = if k == 0 { "start" } else { "end" };
+            let estimated =
+                self.is_shared(k) || self.active_subspaces().iter().any(|s| s.name == subspace);
+            if estimated {
+                sketch.marks.push(Mark::Marker {
+                    at: end,
+                    ink: Ink::Corner,
+                    size: 8,
+                    filled: self.is_shared(k),
+                });
+                sketch.marks.push(Mark::Ellipse {
+                    offset: 2 * k,
+                    at: end,
+                    ink: Ink::Corner,
+                });
+            }
+        }
+        sketch
+    }
+
     fn kind(&self) -> &'static str {
         "wall"
     }

@@ -1,9 +1,14 @@
 //! The common stream of timestamped events that every dataset reader and the simulator yield,
-//! and that every estimator consumes.
+//! and that every estimator consumes: whole in memory ([`Dataset`]) or one event at a time
+//! ([`EventStream`]).
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
 
 use slam_core::nalgebra::Vector2;
 use slam_core::{MotionModel, Observation, Pose2, Pose3};
 
+use crate::error::Result;
 use crate::scan::LaserScan;
 
 /// What happened at one time.
@@ -90,7 +95,7 @@ pub struct Dataset {
     /// Surveyed or generated landmark positions, when the data have them.
     pub landmarks: Vec<KnownLandmark>,
     /// Lines that were not used, counted by their first word (e.g. `NEFF`, `PARAM`).
-    pub skipped: std::collections::BTreeMap<String, usize>,
+    pub skipped: BTreeMap<String, usize>,
 }
 
 impl Dataset {
@@ -147,4 +152,218 @@ pub struct EventCounts {
     pub ground_truth: usize,
     /// GPS fixes.
     pub gps: usize,
+}
+
+/// What a dataset says about itself before its events are read.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatasetInfo {
+    /// Short description, e.g. the file name.
+    pub name: String,
+    /// Where the times come from.
+    pub clock: Clock,
+    /// Surveyed or generated landmark positions, when the data have them.
+    pub landmarks: Vec<KnownLandmark>,
+}
+
+/// Counts of unused lines by their first word, shared between a reader and its
+/// [`EventStream`] (cloning shares the counts).
+#[derive(Clone, Debug, Default)]
+pub struct SkipCounter(Arc<Mutex<BTreeMap<String, usize>>>);
+
+impl SkipCounter {
+    /// A counter starting at `counts`.
+    pub fn new(counts: BTreeMap<String, usize>) -> Self {
+        SkipCounter(Arc::new(Mutex::new(counts)))
+    }
+
+    /// Counts one unused line under `key`.
+    pub fn count(&self, key: &str) {
+        let mut counts = self.lock();
+        match counts.get_mut(key) {
+            Some(n) => *n += 1,
+            None => {
+                counts.insert(key.to_string(), 1);
+            }
+        }
+    }
+
+    /// The counts so far.
+    pub fn get(&self) -> BTreeMap<String, usize> {
+        self.lock().clone()
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, BTreeMap<String, usize>> {
+        // A panic while counting cannot leave the map inconsistent: use it anyway.
+        self.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
+/// A dataset read (or simulated) one event at a time, in time order.
+///
+/// An iterator of `Result<TimedEvent>`: a malformed line further down a file arrives as an
+/// `Err` item when the reader gets there, and the stream ends after it.
+///
+/// ```
+/// use slam_sensors::{Clock, Dataset, Event, EventStream};
+/// use slam_core::nalgebra::Vector2;
+/// let mut data = Dataset::new("tiny", Clock::Seconds);
+/// data.push(1.0, Event::Gps(Vector2::new(1.0, 2.0)));
+/// let mut stream = EventStream::from_dataset(data);
+/// assert_eq!(stream.info.name, "tiny");
+/// assert_eq!(stream.next().unwrap().unwrap().time, 1.0);
+/// assert!(stream.next().is_none());
+/// ```
+pub struct EventStream {
+    /// What the dataset says about itself.
+    pub info: DatasetInfo,
+    events: Box<dyn Iterator<Item = Result<TimedEvent>> + Send>,
+    skipped: SkipCounter,
+    done: bool,
+}
+
+impl EventStream {
+    /// A stream of `events`, with no skipped lines (see [`EventStream::with_skipped`]).
+    pub fn new(
+        info: DatasetInfo,
+        events: impl Iterator<Item = Result<TimedEvent>> + Send + 'static,
+    ) -> Self {
+        EventStream {
+            info,
+            events: Box::new(events),
+            skipped: SkipCounter::default(),
+            done: false,
+        }
+    }
+
+    /// The stream with `skipped` as its skip counts (shared with whatever counts into it).
+    pub fn with_skipped(mut self, skipped: SkipCounter) -> Self {
+        self.skipped = skipped;
+        self
+    }
+
+    /// An in-memory dataset as a stream.
+    pub fn from_dataset(dataset: Dataset) -> Self {
+        let Dataset {
+            name,
+            events,
+            clock,
+            landmarks,
+            skipped,
+        } = dataset;
+        let info = DatasetInfo {
+            name,
+            clock,
+            landmarks,
+        };
+        EventStream::new(info, events.into_iter().map(Ok)).with_skipped(SkipCounter::new(skipped))
+    }
+
+    /// Lines not used so far, counted by their first word (as [`Dataset::skipped`]).
+    pub fn skipped(&self) -> BTreeMap<String, usize> {
+        self.skipped.get()
+    }
+
+    /// The shared skip counter, for an adapter that passes it on to the stream it builds.
+    pub fn skip_counter(&self) -> SkipCounter {
+        self.skipped.clone()
+    }
+
+    /// Collects the remaining events into a [`Dataset`]; the first `Err` ends it.
+    pub fn into_dataset(self) -> Result<Dataset> {
+        let EventStream {
+            info,
+            events,
+            skipped,
+            done,
+        } = self;
+        let mut dataset = Dataset::new(info.name, info.clock);
+        dataset.landmarks = info.landmarks;
+        if !done {
+            for event in events {
+                dataset.events.push(event?);
+            }
+        }
+        dataset.skipped = skipped.get();
+        Ok(dataset)
+    }
+}
+
+impl Iterator for EventStream {
+    type Item = Result<TimedEvent>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        let next = self.events.next();
+        if !matches!(next, Some(Ok(_))) {
+            self.done = true;
+        }
+        next
+    }
+}
+
+impl std::fmt::Debug for EventStream {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("EventStream")
+            .field("info", &self.info)
+            .field("skipped", &self.skipped.get())
+            .field("done", &self.done)
+            .finish_non_exhaustive()
+    }
+}
+
+/// A source of events that produces them in batches: each [`Step::step`] appends zero or
+/// more events (e.g. those of one line of a file, or of one simulated time step).
+pub(crate) trait Step {
+    /// Appends the next events to `out`; `Ok(false)` when there are no more. Events appended
+    /// before an `Err` are still yielded, before the error.
+    fn step(&mut self, out: &mut std::collections::VecDeque<TimedEvent>) -> Result<bool>;
+}
+
+/// The events of a [`Step`] source, one at a time; the stream ends after an error.
+pub(crate) struct Pump<S> {
+    source: S,
+    queue: std::collections::VecDeque<TimedEvent>,
+    error: Option<crate::SensorError>,
+    finished: bool,
+}
+
+impl<S: Step> Pump<S> {
+    pub(crate) fn new(source: S) -> Self {
+        Pump {
+            source,
+            queue: Default::default(),
+            error: None,
+            finished: false,
+        }
+    }
+}
+
+impl<S: Step> Iterator for Pump<S> {
+    type Item = Result<TimedEvent>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            if let Some(event) = self.queue.pop_front() {
+                return Some(Ok(event));
+            }
+            if let Some(error) = self.error.take() {
+                return Some(Err(error));
+            }
+            if self.finished {
+                return None;
+            }
+            match self.source.step(&mut self.queue) {
+                Ok(true) => {}
+                Ok(false) => self.finished = true,
+                Err(error) => {
+                    self.finished = true;
+                    self.error = Some(error);
+                }
+            }
+        }
+    }
 }

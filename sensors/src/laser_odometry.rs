@@ -19,14 +19,16 @@
 //! are singular, or the match lies more than `max_mahalanobis` (squared) from the odometry under
 //! the odometry's covariance.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
 use slam_core::{Pose2, Pose3, wrap_angle};
 
 use crate::error::{Result, SensorError};
-use crate::events::{Dataset, Event, TimedEvent};
+use crate::events::{Dataset, Event, EventStream, Pump, Step, TimedEvent};
 use crate::odometry::PoseIncrement;
 
 /// Settings of the laser odometry; `Default` gives values that work on indoor SICK logs.
@@ -104,7 +106,7 @@ pub struct ScanMatch {
     pub matched: usize,
 }
 
-/// What [`laser_odometry`] did.
+/// What [`laser_odometry`] did (or a [`laser_odometry_stream`] has done so far).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LaserOdometryReport {
     /// Scans whose preceding odometry was replaced by a match.
@@ -337,21 +339,93 @@ fn compound(motions: &[TimedEvent]) -> Result<(Pose2, Matrix3<f64>)> {
 /// the motion events stay. Observations, images and GPS fixes need the pose at their own time:
 /// motion pending before one of them is written unchanged and the next scan starts a new chain.
 /// Scans from mounts other than the previous scan's (a second laser) also start a new chain.
+///
+/// This is [`laser_odometry_stream`] collected.
 pub fn laser_odometry(
     dataset: Dataset,
     params: &LaserOdometryParams,
 ) -> Result<(Dataset, LaserOdometryReport)> {
+    let (stream, counts) = laser_odometry_stream(EventStream::from_dataset(dataset), params)?;
+    let dataset = stream.into_dataset()?;
+    Ok((dataset, counts.report()))
+}
+
+/// How many scans a [`laser_odometry_stream`] has matched and refused so far: a handle that
+/// can be read while and after the stream is consumed (clones share the counts).
+#[derive(Clone, Debug, Default)]
+pub struct LaserOdometryCounts {
+    matched: Arc<AtomicUsize>,
+    refused: Arc<AtomicUsize>,
+}
+
+impl LaserOdometryCounts {
+    /// The counts so far.
+    pub fn report(&self) -> LaserOdometryReport {
+        LaserOdometryReport {
+            matched: self.matched.load(Ordering::Relaxed),
+            refused: self.refused.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// [`laser_odometry`] one event at a time: the same events in the same order. Motion events
+/// are held back from one scan (or observation, image, GPS fix) to the next, as the match
+/// needs them; other events pass through at once. Invalid parameters are an error of this
+/// call; a tilted laser or a failed match an `Err` item.
+///
+/// ```
+/// use slam_sensors::laser_odometry::{LaserOdometryParams, laser_odometry_stream};
+/// use slam_sensors::sim::{World, simulate_stream};
+/// let mut world = World::default_world();
+/// world.robot.waypoints.truncate(1);
+/// world.camera = None;
+/// let run = simulate_stream(&world, 1).unwrap();
+/// let (stream, counts) =
+///     laser_odometry_stream(run.events, &LaserOdometryParams::default()).unwrap();
+/// let first: Vec<_> = stream.take(40).collect::<Result<_, _>>().unwrap();
+/// assert_eq!(first.len(), 40);
+/// assert!(counts.report().matched > 0);
+/// ```
+pub fn laser_odometry_stream(
+    stream: EventStream,
+    params: &LaserOdometryParams,
+) -> Result<(EventStream, LaserOdometryCounts)> {
     params.validate()?;
-    let mut dataset = dataset;
-    let events = std::mem::take(&mut dataset.events);
-    let mut report = LaserOdometryReport::default();
-    let mut out = Vec::with_capacity(events.len());
-    let mut pending: Vec<TimedEvent> = Vec::new();
-    // The previous scan's points (sensor frame) and its planar mount.
-    let mut previous: Option<(Vec<Vector2<f64>>, Pose2)> = None;
-    for timed in events {
+    let counts = LaserOdometryCounts::default();
+    let info = stream.info.clone();
+    let skipped = stream.skip_counter();
+    let matcher = Matcher {
+        input: stream,
+        params: params.clone(),
+        counts: counts.clone(),
+        pending: Vec::new(),
+        previous: None,
+    };
+    let events = EventStream::new(info, Pump::new(matcher)).with_skipped(skipped);
+    Ok((events, counts))
+}
+
+/// The state of a [`laser_odometry_stream`].
+struct Matcher {
+    input: EventStream,
+    params: LaserOdometryParams,
+    counts: LaserOdometryCounts,
+    /// Motion events since the previous scan.
+    pending: Vec<TimedEvent>,
+    /// The previous scan's points (sensor frame) and its planar mount.
+    previous: Option<(Vec<Vector2<f64>>, Pose2)>,
+}
+
+impl Step for Matcher {
+    fn step(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<bool> {
+        let Some(timed) = self.input.next() else {
+            out.extend(self.pending.drain(..));
+            return Ok(false);
+        };
+        let timed = timed?;
+        let params = &self.params;
         match &timed.event {
-            Event::Motion(_) => pending.push(timed),
+            Event::Motion(_) => self.pending.push(timed),
             Event::Scan {
                 scan,
                 robot_from_sensor,
@@ -363,44 +437,44 @@ pub fn laser_odometry(
                     .filter(|p| p.range <= params.max_range)
                     .map(|p| p.position)
                     .collect();
-                let chained = previous
+                let chained = self
+                    .previous
                     .as_ref()
                     .filter(|(_, before)| before.to_vector() == mount.to_vector());
                 match chained {
-                    Some((reference, _)) if !pending.is_empty() => {
-                        match match_to_previous(reference, &points, &mount, &pending, params)? {
+                    Some((reference, _)) if !self.pending.is_empty() => {
+                        match match_to_previous(reference, &points, &mount, &self.pending, params)?
+                        {
                             Some(increment) => {
-                                pending.clear();
-                                out.push(TimedEvent {
+                                self.pending.clear();
+                                out.push_back(TimedEvent {
                                     time: timed.time,
                                     event: Event::Motion(Box::new(increment)),
                                 });
-                                report.matched += 1;
+                                self.counts.matched.fetch_add(1, Ordering::Relaxed);
                             }
                             None => {
-                                out.append(&mut pending);
-                                report.refused += 1;
+                                out.extend(self.pending.drain(..));
+                                self.counts.refused.fetch_add(1, Ordering::Relaxed);
                             }
                         }
                     }
-                    _ => out.append(&mut pending),
+                    _ => out.extend(self.pending.drain(..)),
                 }
-                previous = Some((points, mount));
-                out.push(timed);
+                self.previous = Some((points, mount));
+                out.push_back(timed);
             }
             Event::Observations(_) | Event::Image { .. } | Event::Gps(_) => {
-                if !pending.is_empty() {
-                    out.append(&mut pending);
-                    previous = None;
+                if !self.pending.is_empty() {
+                    out.extend(self.pending.drain(..));
+                    self.previous = None;
                 }
-                out.push(timed);
+                out.push_back(timed);
             }
-            Event::GroundTruth { .. } => out.push(timed),
+            Event::GroundTruth { .. } => out.push_back(timed),
         }
+        Ok(true)
     }
-    out.append(&mut pending);
-    dataset.events = out;
-    Ok((dataset, report))
 }
 
 /// The robot increment of the match of `current` to `reference`, the odometry `pending`

@@ -26,5 +26,8 @@ mod scan;
 pub mod sim;
 
 pub use error::{Result, SensorError};
-pub use events::{Clock, Dataset, Event, KnownLandmark, TimedEvent, TruthKind};
+pub use events::{
+    Clock, Dataset, DatasetInfo, Event, EventStream, KnownLandmark, SkipCounter, TimedEvent,
+    TruthKind,
+};
 pub use scan::{LaserScan, ScanPoint};

@@ -77,6 +77,10 @@ pub enum Error {
     /// Serialization or deserialization failed.
     #[error("serialization: {0}")]
     Serde(String),
+    /// An internal invariant does not hold: a bug in the library, not bad input (e.g. a state
+    /// row that an estimator lost track of).
+    #[error("internal invariant broken (a bug, please report it): {0}")]
+    Invariant(String),
 }
 
 /// `Result` with [`Error`].

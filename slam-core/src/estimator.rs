@@ -2,10 +2,12 @@
 //! that the `slam` command can swap one for another by configuration (paper section V: "the
 //! M-space feature representation is orthogonal to the choice of SLAM algorithm").
 
-use nalgebra::{DMatrix, Vector2};
+use std::collections::BTreeMap;
+
+use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::map::{FeatureMap, RowOwner};
 use crate::measurement::DynMeasurementModel;
 use crate::motion::MotionModel;
@@ -22,6 +24,78 @@ pub struct Observation {
     pub landmark_id: Option<u64>,
 }
 
+impl Clone for Observation {
+    fn clone(&self) -> Self {
+        Observation {
+            robot_from_sensor: self.robot_from_sensor,
+            measurement: self.measurement.clone_box(),
+            landmark_id: self.landmark_id,
+        }
+    }
+}
+
+/// What an estimator or front-end left out, counted by reason (a failed linearization, a
+/// singular innovation covariance, a change a feature refused): never a silent skip.
+///
+/// ```
+/// use slam_core::Skips;
+/// let mut skips = Skips::default();
+/// skips.count("singular innovation covariance");
+/// skips.count("singular innovation covariance");
+/// assert_eq!(skips.get("singular innovation covariance"), 2);
+/// assert_eq!(skips.total(), 2);
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Skips(BTreeMap<String, usize>);
+
+impl Skips {
+    /// Counts one skip for `reason`.
+    pub fn count(&mut self, reason: &str) {
+        self.add(reason, 1);
+    }
+
+    /// Counts `n` skips for `reason`.
+    pub fn add(&mut self, reason: &str, n: usize) {
+        if n == 0 {
+            return;
+        }
+        match self.0.get_mut(reason) {
+            Some(total) => *total += n,
+            None => {
+                self.0.insert(reason.to_string(), n);
+            }
+        }
+    }
+
+    /// Adds every count of `other`.
+    pub fn merge(&mut self, other: &Skips) {
+        for (reason, n) in &other.0 {
+            self.add(reason, *n);
+        }
+    }
+
+    /// The count for `reason`.
+    pub fn get(&self, reason: &str) -> usize {
+        self.0.get(reason).copied().unwrap_or(0)
+    }
+
+    /// All skips.
+    pub fn total(&self) -> usize {
+        self.0.values().sum()
+    }
+
+    /// True when nothing was skipped.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// `(reason, count)` in the order of the reasons.
+    pub fn iter(&self) -> impl Iterator<Item = (&str, usize)> {
+        self.0.iter().map(|(r, n)| (r.as_str(), *n))
+    }
+}
+
 /// What one update step did.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct UpdateReport {
@@ -34,6 +108,8 @@ pub struct UpdateReport {
     /// Normalized innovation squared of each associated observation, with its degrees of
     /// freedom, for consistency checks (NIS).
     pub nis: Vec<(f64, usize)>,
+    /// What the step left out besides the rejected observations, by reason.
+    pub skipped: Skips,
 }
 
 /// A SLAM estimator over robot poses of type `P`, written against the slam-core traits only.
@@ -58,28 +134,6 @@ pub trait Estimator<P: RobotPose> {
 
     /// Covariance of one row group of the map's M-space perturbations, if the estimator has it.
     fn row_covariance(&self, owner: RowOwner) -> Option<DMatrix<f64>>;
-
-    /// Whether the estimator builds its map from raw scan points
-    /// ([`update_points`](Estimator::update_points)) rather than from extracted observations
-    /// (a particle filter with PPCA line maps). Default: false.
-    fn uses_scan_points(&self) -> bool {
-        false
-    }
-
-    /// Incorporates the valid points of one planar range scan, in the sensor frame (x
-    /// forward, y left, m), taken by a sensor at `robot_from_sensor`. Default: an error (the
-    /// estimator takes observations).
-    fn update_points(
-        &mut self,
-        robot_from_sensor: &Pose3,
-        points: &[Vector2<f64>],
-    ) -> Result<UpdateReport> {
-        let _ = (robot_from_sensor, points);
-        Err(Error::InvalidArgument(format!(
-            "the {} estimator takes observations, not scan points",
-            self.name()
-        )))
-    }
 
     /// Ends one time step (the caller records the estimate once per step): a particle filter
     /// appends each particle's pose to that particle's path. Default: nothing.

@@ -9,6 +9,7 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::coords::{CoordBlock, Coordinates};
 use crate::error::{Error, Result, ensure_finite};
+use crate::shape::{Ink, Mark, Shape, Sketch};
 
 /// A named group of M-space rows that a feature gains together, e.g. a wall's
 /// `"line"` (rotation and normal offset) or its `"start"` (tangential position of the start
@@ -153,6 +154,34 @@ pub trait Feature: dyn_clone::DynClone + Debug + Send + Sync + Any {
     fn is_shared(&self, index: usize) -> bool {
         let _ = index;
         false
+    }
+
+    /// The feature's geometry in the world frame, for map error against a true map (the
+    /// nearest true shape of the same kind, [`Shape::error_against`]) and for matching a
+    /// feature with a known landmark ([`Shape::anchor`]). `None` (the default) when the
+    /// feature is not scored, e.g. while it is not placed in every direction its kind needs.
+    fn shape(&self) -> Option<Shape> {
+        None
+    }
+
+    /// How the feature is drawn in a map figure. The default marks each point block and
+    /// counts the feature under "other features".
+    fn sketch(&self) -> Sketch {
+        let mut sketch = Sketch::new("other features", Ink::Point);
+        for block in self.coordinates().blocks() {
+            let at = match block {
+                CoordBlock::Point3(p) => p.xy(),
+                CoordBlock::Point2(p) => *p,
+                CoordBlock::Scalar(_) => continue,
+            };
+            sketch.marks.push(Mark::Marker {
+                at,
+                ink: Ink::Point,
+                size: 7,
+                filled: false,
+            });
+        }
+        sketch
     }
 
     /// Marks block `index` as shared and re-parameterizes the own rows accordingly (eq. 33).

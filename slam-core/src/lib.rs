@@ -15,6 +15,8 @@
 //!   (eq. 16); [`linearize`] gives `J_eta,state = J_eta_o (J_or | J_of B~)` (eqs. 21, 30).
 //! - [`FeatureMap`]: features with shared blocks; one set of rows per shared block.
 //! - [`MotionModel`] (eqs. 25-27) and [`Estimator`].
+//! - [`Shape`] and [`Sketch`]: a feature's world-frame geometry for map error, and how it is
+//!   drawn, so that outputs never need its concrete type.
 //! - [`chi2_quantile`] and [`chi2_cdf`] for gates and consistency bands.
 //! - [`testing`]: the conformance suite every feature and measurement model runs.
 //!
@@ -30,6 +32,7 @@ mod map;
 mod measurement;
 mod motion;
 mod pose;
+mod shape;
 mod stats;
 pub mod testing;
 mod transform;
@@ -38,7 +41,7 @@ pub use nalgebra;
 
 pub use coords::{BlockKind, CoordBlock, Coordinates};
 pub use error::{Error, Result, ensure_finite};
-pub use estimator::{Estimator, Observation, UpdateReport};
+pub use estimator::{Estimator, Observation, Skips, UpdateReport};
 pub use feature::{Feature, Growth, Subspace, downcast_feature, downcast_feature_mut, stack_rows};
 pub use map::{
     FeatureId, FeatureMap, MapLinearization, RowOwner, RowTransform, SharedBlock, SharedBlockId,
@@ -49,6 +52,7 @@ pub use measurement::{
 };
 pub use motion::{MotionModel, MotionPrediction};
 pub use pose::{Pose2, Pose3, RobotPose, SensorPose, wrap_angle};
+pub use shape::{Ink, Mark, Shape, Sketch, line_distance, segment_distance};
 pub use stats::{chi2_cdf, chi2_quantile};
 pub use transform::{MapToSensor, SensorFrameCoordinates};
 

@@ -9,7 +9,7 @@ use slam_core::nalgebra::{DMatrix, Vector2, Vector3};
 use slam_core::{
     Estimator, MotionModel, Observation, Pose2, Pose3, RobotPose, RowOwner, downcast_feature,
 };
-use slam_estimators::{Ekf, EkfParams, pose_error};
+use slam_estimators::{Ekf, EkfParams};
 use slam_features::Point;
 use slam_sensors::camera::PinholeCamera;
 use slam_sensors::models::ImagePointObservation;
@@ -66,7 +66,7 @@ fn lamp_run(seed: u64) -> Option<(f64, f64)> {
     }
     let e = point.position() - lamp;
     let lamp_nees = (e.transpose() * c.try_inverse()? * e)[(0, 0)];
-    let pe = pose_error(&truth, &ekf.pose());
+    let pe = slam_core::RobotPose::ominus(&truth, &ekf.pose());
     let pe = Vector3::new(pe[0], pe[1], pe[2]);
     let pose_nees = (pe.transpose() * ekf.pose_covariance().try_inverse()? * pe)[(0, 0)];
     Some((lamp_nees, pose_nees))

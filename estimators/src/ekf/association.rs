@@ -1,186 +1,109 @@
-//! Data association for observations without landmark ids: Mahalanobis-gated nearest
-//! neighbour, and joint compatibility branch and bound (JCBB, Neira & Tardos, IEEE T-RA
-//! 17(6), 2001).
+//! The EKF's side of data association: the candidates of an observation, linearized against
+//! the full state, and the joint distance of a JCBB hypothesis from the full covariance. The
+//! rules are the shared ones ([`crate::association`]).
 
-use std::collections::{BTreeMap, HashMap};
+use slam_core::{Observation, Result, RobotPose};
 
-use slam_core::{Result, chi2_quantile};
+use super::jacobians::stack;
+use super::{Decision, Ekf, Pairing};
+use crate::association::{Candidate, Choice, associate, candidate_features, sort_by_distance};
 
-use super::Pairing;
-
-/// One feature an observation might be of.
-#[derive(Clone, Debug)]
-pub(super) struct Candidate {
-    /// The observation linearized against the feature.
-    pub pairing: Pairing,
-    /// Squared Mahalanobis distance of the innovation, `eta^T S^-1 eta`.
-    pub distance: f64,
-    /// Whether the feature is tentative (no state rows yet).
-    pub tentative: bool,
-}
-
-/// The association of one observation: the index of the chosen candidate.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum Choice {
-    /// Paired with candidate `k` of the observation's list.
-    Pair(usize),
-}
-
-/// Whether a candidate passes the individual gate for its innovation dimension.
-fn in_gate(candidate: &Candidate, gates: &BTreeMap<usize, f64>) -> bool {
-    gates
-        .get(&candidate.pairing.eta.len())
-        .is_some_and(|&gate| candidate.distance <= gate)
-}
-
-/// Each observation to its nearest candidate (candidates are sorted by distance) that passes
-/// the gate; several observations may pair with one feature (two pieces of one wall).
-pub(super) fn nearest_neighbour(
-    candidates: &BTreeMap<usize, Vec<Candidate>>,
-    gates: &BTreeMap<usize, f64>,
-) -> BTreeMap<usize, Choice> {
-    candidates
-        .iter()
-        .filter_map(|(&observation, list)| {
-            list.iter()
-                .position(|c| in_gate(c, gates))
-                .map(|k| (observation, Choice::Pair(k)))
-        })
-        .collect()
-}
-
-/// JCBB over the candidates with state rows; observations it leaves unpaired then go to the
-/// nearest tentative candidate in the gate. `joint(pairings)` gives the joint squared
-/// Mahalanobis distance and dimension of a hypothesis, `None` when its `S` is singular.
-pub(super) fn jcbb<'a>(
-    candidates: &'a BTreeMap<usize, Vec<Candidate>>,
-    gates: &BTreeMap<usize, f64>,
-    joint: impl Fn(&[&'a super::Pairing]) -> Option<(f64, usize)>,
-    probability: f64,
-    max_nodes: usize,
-) -> Result<BTreeMap<usize, Choice>> {
-    // Individually compatible pairings with confirmed features, per observation.
-    let lists: Vec<(usize, Vec<usize>)> = candidates
-        .iter()
-        .map(|(&observation, list)| {
-            let compatible = list
-                .iter()
-                .enumerate()
-                .filter(|(_, c)| !c.tentative && in_gate(c, gates))
-                .map(|(k, _)| k)
-                .collect();
-            (observation, compatible)
-        })
-        .filter(|(_, compatible): &(usize, Vec<usize>)| !compatible.is_empty())
-        .collect();
-    let mut search = Search {
-        candidates,
-        lists: &lists,
-        joint: &joint,
-        probability,
-        gates: HashMap::new(),
-        best: Vec::new(),
-        best_distance: f64::INFINITY,
-        nodes: 0,
-        max_nodes,
-    };
-    search.recurse(0, &mut Vec::new(), 0.0)?;
-    let mut chosen: BTreeMap<usize, Choice> = search
-        .best
-        .iter()
-        .map(|&(observation, k)| (observation, Choice::Pair(k)))
-        .collect();
-    for (&observation, list) in candidates {
-        if chosen.contains_key(&observation) {
-            continue;
-        }
-        if let Some(k) = list.iter().position(|c| c.tentative && in_gate(c, gates)) {
-            chosen.insert(observation, Choice::Pair(k));
-        }
-    }
-    Ok(chosen)
-}
-
-/// The state of one JCBB search.
-struct Search<'a, 'j, J> {
-    candidates: &'a BTreeMap<usize, Vec<Candidate>>,
-    /// `(observation, indices of its compatible candidates)`, in search order.
-    lists: &'j [(usize, Vec<usize>)],
-    joint: &'j J,
-    probability: f64,
-    gates: HashMap<usize, f64>,
-    /// Best hypothesis: `(observation, candidate index)` pairs.
-    best: Vec<(usize, usize)>,
-    best_distance: f64,
-    nodes: usize,
-    max_nodes: usize,
-}
-
-impl<'a, J> Search<'a, '_, J>
-where
-    J: Fn(&[&'a Pairing]) -> Option<(f64, usize)>,
-{
-    fn gate(&mut self, dof: usize) -> Result<f64> {
-        if let Some(&g) = self.gates.get(&dof) {
-            return Ok(g);
-        }
-        let g = chi2_quantile(self.probability, dof)?;
-        self.gates.insert(dof, g);
-        Ok(g)
-    }
-
-    fn pairing(&self, observation: usize, k: usize) -> &'a Pairing {
-        &self.candidates[&observation][k].pairing
-    }
-
-    /// Depth-first over observations `level..`: pair with each compatible candidate whose
-    /// addition keeps the hypothesis jointly compatible, or leave the observation unpaired
-    /// when the remaining levels could still beat the best hypothesis.
-    fn recurse(
-        &mut self,
-        level: usize,
-        hypothesis: &mut Vec<(usize, usize)>,
-        distance: f64,
-    ) -> Result<()> {
-        self.nodes += 1;
-        if level == self.lists.len() {
-            let better = hypothesis.len() > self.best.len()
-                || (hypothesis.len() == self.best.len() && distance < self.best_distance);
-            if better {
-                self.best = hypothesis.clone();
-                self.best_distance = distance;
-            }
-            return Ok(());
-        }
-        if self.nodes > self.max_nodes {
-            return Ok(());
-        }
-        let lists = self.lists;
-        let (observation, compatible) = &lists[level];
-        for &k in compatible {
-            let feature = self.pairing(*observation, k).feature;
-            if hypothesis
-                .iter()
-                .any(|&(o, j)| self.pairing(o, j).feature == feature)
-            {
+impl<P: RobotPose> Ekf<P> {
+    /// The candidate features of an observation with their Mahalanobis distances, nearest
+    /// first.
+    fn candidates(&mut self, observation: &Observation) -> Vec<Candidate<Pairing>> {
+        let world_from_sensor = self.pose.world_from_sensor(&observation.robot_from_sensor);
+        let mut skips = std::mem::take(&mut self.skips);
+        let nearby = candidate_features(
+            self.map.iter(),
+            observation.measurement.as_ref(),
+            &world_from_sensor,
+            self.params.association_margin,
+            &mut skips,
+        );
+        let mut out = Vec::new();
+        for (id, _, _) in nearby {
+            let Ok(pairing) = self.linearize(observation, id) else {
+                skips.count("association: linearization failed");
                 continue;
+            };
+            let tentative = !self.is_confirmed(id);
+            let s = self.innovation_covariance(&pairing, tentative);
+            let Some(s_inv) = s.try_inverse() else {
+                skips.count("association: singular innovation covariance");
+                continue;
+            };
+            let distance = (pairing.eta.transpose() * &s_inv * &pairing.eta)[(0, 0)];
+            if distance.is_finite() {
+                out.push(Candidate {
+                    feature: id.0,
+                    distance,
+                    dof: pairing.eta.len(),
+                    tentative,
+                    data: pairing,
+                });
+            } else {
+                skips.count("association: non-finite Mahalanobis distance");
             }
-            hypothesis.push((*observation, k));
-            let pairings: Vec<&'a Pairing> = hypothesis
-                .iter()
-                .map(|&(o, j)| self.pairing(o, j))
-                .collect();
-            if let Some((joint_distance, dof)) = (self.joint)(&pairings)
-                && joint_distance <= self.gate(dof)?
-            {
-                self.recurse(level + 1, hypothesis, joint_distance)?;
+        }
+        self.skips = skips;
+        sort_by_distance(&mut out);
+        out
+    }
+
+    /// Decides, for every observation, whether it pairs, starts a feature or is dropped:
+    /// known landmark ids directly, the others by the configured rule.
+    pub(super) fn associate(&mut self, observations: &[Observation]) -> Result<Vec<Decision>> {
+        let mut decisions: Vec<Option<Decision>> = (0..observations.len()).map(|_| None).collect();
+        let mut open = Vec::new();
+        for (index, observation) in observations.iter().enumerate() {
+            match observation.landmark_id {
+                Some(id) => {
+                    decisions[index] = Some(match self.ids.get(&id) {
+                        Some(&feature) => match self.linearize(observation, feature) {
+                            Ok(pairing) => Decision::Pair(pairing),
+                            Err(_) => {
+                                self.skips.count("association: linearization failed");
+                                Decision::Reject
+                            }
+                        },
+                        None => Decision::New,
+                    });
+                }
+                None => open.push(index),
             }
-            hypothesis.pop();
         }
-        let remaining = self.lists.len() - level - 1;
-        if hypothesis.len() + remaining >= self.best.len() {
-            self.recurse(level + 1, hypothesis, distance)?;
+        let lists: Vec<Vec<Candidate<Pairing>>> = open
+            .iter()
+            .map(|&index| self.candidates(&observations[index]))
+            .collect();
+        let settings = self.params.association_settings();
+        let choices = associate(&lists, &settings, &self.gates, |hypothesis| {
+            let pairings: Vec<&Pairing> = hypothesis.iter().map(|c| &c.data).collect();
+            self.joint_distance(&pairings)
+        })?;
+        for ((index, list), choice) in open.into_iter().zip(lists).zip(choices) {
+            decisions[index] = Some(match choice {
+                Choice::Pair(k) => list
+                    .into_iter()
+                    .nth(k)
+                    .map_or(Decision::Reject, |c| Decision::Pair(c.data)),
+                Choice::New => Decision::New,
+                Choice::Ambiguous => Decision::Reject,
+            });
         }
-        Ok(())
+        Ok(decisions
+            .into_iter()
+            .map(|d| d.unwrap_or(Decision::Reject))
+            .collect())
+    }
+
+    /// Joint Mahalanobis distance and dimension of a set of pairings (for JCBB).
+    fn joint_distance(&self, pairings: &[&Pairing]) -> Option<(f64, usize)> {
+        let (indices, h, r, eta) = stack(pairings);
+        let c = self.cov.gather(&indices, &indices);
+        let s = &h * c * h.transpose() + r;
+        let s_inv = s.try_inverse()?;
+        Some(((eta.transpose() * s_inv * &eta)[(0, 0)], eta.len()))
     }
 }

@@ -22,37 +22,30 @@
 //!    (section VI, eq. 33): the covariance is re-parameterized onto the shared rows.
 
 mod association;
+mod corners;
+mod covariance;
+mod jacobians;
+mod update;
+mod views;
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeMap, HashMap};
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{
-    CoordBlock, Coordinates, DynMeasurementModel, Error, Estimator, FeatureId, FeatureMap,
-    MotionModel, Observation, Pose3, Result, RobotPose, RowOwner, UpdateReport, chi2_quantile,
-    wrap_angle,
+    Error, Estimator, FeatureId, FeatureMap, MotionModel, Observation, Result, RobotPose, RowOwner,
+    Skips, UpdateReport,
 };
 
-use crate::covariance::StateCovariance;
-use crate::lifecycle::BoundingBox;
-use association::{Candidate, Choice};
-
-/// How observations without landmark ids are matched to features.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Association {
-    /// Each observation to the feature with the smallest Mahalanobis distance inside the gate.
-    #[default]
-    NearestNeighbour,
-    /// Joint compatibility branch and bound (Neira & Tardos 2001): the largest set of
-    /// pairings whose joint innovation passes the gate.
-    Jcbb,
-}
+use crate::association::{Association, AssociationSettings, Gates};
+use crate::lifecycle::{LifecycleSettings, Track, first_failure};
+use covariance::StateCovariance;
+use jacobians::pose_generators;
 
 /// Settings of the [`Ekf`]; `Default` gives the values used on the built-in world.
 ///
 /// ```
-/// use slam_estimators::{EkfParams, Association};
+/// use slam_estimators::{Association, EkfParams};
 /// let params = EkfParams { association: Association::Jcbb, ..Default::default() };
 /// assert_eq!(params.confirm_after, 3);
 /// ```
@@ -115,75 +108,33 @@ impl Default for EkfParams {
 impl EkfParams {
     /// Checks every value's range.
     pub fn validate(&self) -> Result<()> {
-        let probability = |p: f64| p > 0.0 && p < 1.0;
-        let checks = [
-            (
-                probability(self.gate_probability),
-                "gate_probability in (0, 1)",
-            ),
-            (
-                probability(self.new_feature_probability)
-                    && self.new_feature_probability >= self.gate_probability,
-                "new_feature_probability in [gate_probability, 1)",
-            ),
-            (self.confirm_after >= 1, "confirm_after >= 1"),
-            (self.tentative_lifetime >= 1, "tentative_lifetime >= 1"),
-            (
-                self.new_row_variance.is_finite() && self.new_row_variance > 0.0,
-                "new_row_variance > 0",
-            ),
-            (
-                self.corner_distance.is_finite() && self.corner_distance >= 0.0,
-                "corner_distance >= 0",
-            ),
-            (self.max_views >= 2, "max_views >= 2"),
-            (
-                self.association_margin.is_finite() && self.association_margin >= 0.0,
-                "association_margin >= 0",
-            ),
-            (self.jcbb_max_nodes >= 1, "jcbb_max_nodes >= 1"),
-        ];
-        match checks.iter().find(|(ok, _)| !ok) {
-            Some((_, what)) => Err(Error::InvalidArgument(format!("EKF parameters: {what}"))),
-            None => Ok(()),
+        let mut checks = self.association_settings().checks();
+        checks.extend(self.lifecycle_settings().checks());
+        checks.push((
+            self.corner_distance.is_finite() && self.corner_distance >= 0.0,
+            "corner_distance >= 0",
+        ));
+        first_failure("EKF", &checks)
+    }
+
+    /// The association settings.
+    pub fn association_settings(&self) -> AssociationSettings {
+        AssociationSettings {
+            rule: self.association,
+            gate_probability: self.gate_probability,
+            new_feature_probability: self.new_feature_probability,
+            margin: self.association_margin,
+            jcbb_max_nodes: self.jcbb_max_nodes,
         }
     }
-}
 
-/// One earlier measurement of a feature, kept for triangulation.
-#[derive(Debug)]
-struct View<P> {
-    /// The pose covariance when the view was taken.
-    pose_covariance: DMatrix<f64>,
-    world_from_sensor: Pose3,
-    world_from_robot: P,
-    robot_from_sensor: Pose3,
-    measurement: Box<dyn DynMeasurementModel>,
-}
-
-/// What the filter remembers about a feature besides its rows.
-#[derive(Debug)]
-struct Track<P> {
-    /// Sightings so far, including the first.
-    sightings: usize,
-    /// The update step of the last sighting.
-    last_seen: usize,
-    /// How often each not-yet-active subspace was revealed.
-    revealed: BTreeMap<&'static str, usize>,
-    /// Views for triangulation (while the feature can still grow).
-    views: Vec<View<P>>,
-    /// The data's landmark id, when known.
-    landmark_id: Option<u64>,
-}
-
-impl<P> Default for Track<P> {
-    fn default() -> Self {
-        Track {
-            sightings: 0,
-            last_seen: 0,
-            revealed: BTreeMap::new(),
-            views: Vec::new(),
-            landmark_id: None,
+    /// The lifecycle settings.
+    pub fn lifecycle_settings(&self) -> LifecycleSettings {
+        LifecycleSettings {
+            confirm_after: self.confirm_after,
+            tentative_lifetime: self.tentative_lifetime,
+            new_row_variance: self.new_row_variance,
+            max_views: self.max_views,
         }
     }
 }
@@ -223,11 +174,13 @@ pub struct Ekf<P: RobotPose> {
     rows: BTreeMap<RowOwner, Vec<usize>>,
     tracks: BTreeMap<FeatureId, Track<P>>,
     ids: HashMap<u64, FeatureId>,
-    gates: HashMap<(usize, u64), f64>,
+    gates: Gates,
     step: usize,
     corners_joined: usize,
     /// Earlier views of features that grew by triangulation in this step, to update with.
     view_batch: Vec<Pairing>,
+    /// What the current step left out, by reason.
+    skips: Skips,
 }
 
 /// What the filter decided for one observation.
@@ -256,6 +209,7 @@ impl<P: RobotPose> Ekf<P> {
         slam_core::ensure_finite(pose_covariance.as_slice(), "initial pose covariance")?;
         let mut cov = StateCovariance::zeros(0);
         cov.append(&pose_covariance, None, &pose_generators(&pose));
+        let gates = Gates::new(&[params.gate_probability, params.new_feature_probability])?;
         Ok(Ekf {
             params,
             pose,
@@ -264,10 +218,11 @@ impl<P: RobotPose> Ekf<P> {
             rows: BTreeMap::new(),
             tracks: BTreeMap::new(),
             ids: HashMap::new(),
-            gates: HashMap::new(),
+            gates,
             step: 0,
             corners_joined: 0,
             view_batch: Vec::new(),
+            skips: Skips::default(),
         })
     }
 
@@ -324,17 +279,6 @@ impl<P: RobotPose> Ekf<P> {
         self.rows.get(&owner).map(Vec::as_slice)
     }
 
-    /// The chi-square gate for `dof` degrees of freedom at `probability` (memoized).
-    fn gate(&mut self, probability: f64, dof: usize) -> Result<f64> {
-        let key = (dof, probability.to_bits());
-        if let Some(&g) = self.gates.get(&key) {
-            return Ok(g);
-        }
-        let g = chi2_quantile(probability, dof)?;
-        self.gates.insert(key, g);
-        Ok(g)
-    }
-
     fn pose_indices() -> Vec<usize> {
         (0..P::DIM).collect()
     }
@@ -351,7 +295,7 @@ impl<P: RobotPose> Ekf<P> {
         let mut blocks = vec![lin.measurement.d_eta_d_robot.clone()];
         for (owner, d) in &lin.columns {
             let rows = self.rows.get(owner).ok_or_else(|| {
-                Error::InvalidArgument(format!("row owner {owner:?} has no state rows"))
+                Error::Invariant(format!("row owner {owner:?} has no state rows"))
             })?;
             if rows.len() != d.ncols() {
                 return Err(Error::DimensionMismatch {
@@ -386,204 +330,7 @@ impl<P: RobotPose> Ekf<P> {
         let s = &pairing.h * c * pairing.h.transpose() + &pairing.cov_eta;
         if tentative { s + &pairing.cov_eta } else { s }
     }
-
-    /// The candidate features of an observation with their Mahalanobis distances.
-    fn candidates(&self, observation: &Observation) -> Vec<Candidate> {
-        let measurement = observation.measurement.as_ref();
-        let world_from_sensor = self.pose.world_from_sensor(&observation.robot_from_sensor);
-        let near = measurement
-            .initial_feature_dyn(&world_from_sensor)
-            .ok()
-            .flatten()
-            .map(|f| BoundingBox::of(f.coordinates()));
-        let mut out = Vec::new();
-        for (id, feature) in self.map.iter() {
-            if !measurement.accepts(feature) {
-                continue;
-            }
-            if let Some(near) = &near
-                && !BoundingBox::of(feature.coordinates())
-                    .near(near, self.params.association_margin)
-            {
-                continue;
-            }
-            let Ok(x_o) = slam_core::MapToSensor::new(&world_from_sensor)
-                .and_then(|t| t.transform(feature.coordinates()))
-            else {
-                continue;
-            };
-            if !measurement.plausible_dyn(feature, &x_o) {
-                continue;
-            }
-            let Ok(pairing) = self.linearize(observation, id) else {
-                continue;
-            };
-            let tentative = !self.is_confirmed(id);
-            let s = self.innovation_covariance(&pairing, tentative);
-            let Some(s_inv) = s.clone().try_inverse() else {
-                continue;
-            };
-            let distance = (pairing.eta.transpose() * &s_inv * &pairing.eta)[(0, 0)];
-            if distance.is_finite() {
-                out.push(Candidate {
-                    pairing,
-                    distance,
-                    tentative,
-                });
-            }
-        }
-        out.sort_by(|a, b| a.distance.total_cmp(&b.distance));
-        out
-    }
-
-    /// Decides, for every observation, whether it pairs, starts a feature or is dropped.
-    fn associate(&mut self, observations: &[Observation]) -> Result<Vec<Decision>> {
-        let mut decisions: Vec<Option<Decision>> = (0..observations.len()).map(|_| None).collect();
-        let mut open = Vec::new();
-        for (index, observation) in observations.iter().enumerate() {
-            match observation.landmark_id {
-                Some(id) => {
-                    decisions[index] = Some(match self.ids.get(&id) {
-                        Some(&feature) => match self.linearize(observation, feature) {
-                            Ok(pairing) => Decision::Pair(pairing),
-                            Err(_) => Decision::Reject,
-                        },
-                        None => Decision::New,
-                    });
-                }
-                None => open.push(index),
-            }
-        }
-        let mut candidates: BTreeMap<usize, Vec<Candidate>> = BTreeMap::new();
-        for &index in &open {
-            candidates.insert(index, self.candidates(&observations[index]));
-        }
-        let mut gates = BTreeMap::new();
-        for list in candidates.values() {
-            for c in list {
-                let dof = c.pairing.eta.len();
-                gates.insert(dof, self.gate(self.params.gate_probability, dof)?);
-            }
-        }
-        let chosen = match self.params.association {
-            Association::NearestNeighbour => association::nearest_neighbour(&candidates, &gates),
-            Association::Jcbb => association::jcbb(
-                &candidates,
-                &gates,
-                |pairings: &[&Pairing]| self.joint_distance(pairings),
-                self.params.gate_probability,
-                self.params.jcbb_max_nodes,
-            )?,
-        };
-        for &index in &open {
-            let list = candidates.remove(&index).unwrap_or_default();
-            let decision = match chosen.get(&index) {
-                Some(Choice::Pair(k)) => list
-                    .into_iter()
-                    .nth(*k)
-                    .map_or(Decision::Reject, |c| Decision::Pair(c.pairing)),
-                _ => {
-                    let mut far_from_all = true;
-                    for c in &list {
-                        let gate =
-                            self.gate(self.params.new_feature_probability, c.pairing.eta.len())?;
-                        if c.distance <= gate {
-                            far_from_all = false;
-                        }
-                    }
-                    if far_from_all {
-                        Decision::New
-                    } else {
-                        Decision::Reject
-                    }
-                }
-            };
-            decisions[index] = Some(decision);
-        }
-        Ok(decisions
-            .into_iter()
-            .map(|d| d.unwrap_or(Decision::Reject))
-            .collect())
-    }
-
-    /// Joint Mahalanobis distance and dimension of a set of pairings (for JCBB).
-    fn joint_distance(&self, pairings: &[&Pairing]) -> Option<(f64, usize)> {
-        let (indices, h, r, eta) = stack(pairings);
-        let c = self.cov.gather(&indices, &indices);
-        let s = &h * c * h.transpose() + r;
-        let s_inv = s.try_inverse()?;
-        Some(((eta.transpose() * s_inv * &eta)[(0, 0)], eta.len()))
-    }
 }
-
-/// The change of the pose parameters under a world translation along x, along y and a
-/// rotation about z (`P::DIM x 3`).
-fn pose_generators<P: RobotPose>(pose: &P) -> DMatrix<f64> {
-    let g = pose.planar_motion_generators();
-    DMatrix::from_fn(P::DIM, 3, |i, j| g[j].get(i).copied().unwrap_or(0.0))
-}
-
-/// The change of coordinates under a world translation along x, along y and a rotation
-/// about z (`dim(x_f) x 3`).
-pub(crate) fn coordinate_generators(coordinates: &Coordinates) -> DMatrix<f64> {
-    let mut g = DMatrix::zeros(coordinates.dim(), 3);
-    for (k, block) in coordinates.blocks().iter().enumerate() {
-        let offset = coordinates.offset(k);
-        let (x, y) = match block {
-            CoordBlock::Point2(p) => (p.x, p.y),
-            CoordBlock::Point3(p) => (p.x, p.y),
-            CoordBlock::Scalar(_) => continue,
-        };
-        g[(offset, 0)] = 1.0;
-        g[(offset + 1, 1)] = 1.0;
-        g[(offset, 2)] = -y;
-        g[(offset + 1, 2)] = x;
-    }
-    g
-}
-
-/// `H - H N (N^T N)^-1 N^T`: the Jacobian that observes nothing along the columns of `n`
-/// (left as it is when `N^T N` is singular).
-pub(crate) fn project_out(h: &DMatrix<f64>, n: &DMatrix<f64>) -> DMatrix<f64> {
-    let gram = n.transpose() * n;
-    match gram.try_inverse() {
-        Some(inverse) => h - h * n * inverse * n.transpose(),
-        None => h.clone(),
-    }
-}
-
-/// Stacks pairings into one measurement: the union of their state rows (sorted), `H` on
-/// those rows, block-diagonal `C_eta` and the stacked innovation.
-fn stack(pairings: &[&Pairing]) -> (Vec<usize>, DMatrix<f64>, DMatrix<f64>, DVector<f64>) {
-    let indices: Vec<usize> = pairings
-        .iter()
-        .flat_map(|p| p.indices.iter().copied())
-        .collect::<BTreeSet<_>>()
-        .into_iter()
-        .collect();
-    let position: HashMap<usize, usize> =
-        indices.iter().enumerate().map(|(k, &i)| (i, k)).collect();
-    let m: usize = pairings.iter().map(|p| p.eta.len()).sum();
-    let mut h = DMatrix::zeros(m, indices.len());
-    let mut r = DMatrix::zeros(m, m);
-    let mut eta = DVector::zeros(m);
-    let mut row = 0;
-    for p in pairings {
-        let k = p.eta.len();
-        for (column, index) in p.indices.iter().enumerate() {
-            let target = position[index];
-            for a in 0..k {
-                h[(row + a, target)] += p.h[(a, column)];
-            }
-        }
-        r.view_mut((row, row), (k, k)).copy_from(&p.cov_eta);
-        eta.rows_mut(row, k).copy_from(&p.eta);
-        row += k;
-    }
-    (indices, h, r, eta)
-}
-
-mod update;
 
 impl<P: RobotPose> Estimator<P> for Ekf<P> {
     fn name(&self) -> &'static str {
@@ -610,8 +357,11 @@ impl<P: RobotPose> Estimator<P> for Ekf<P> {
 
     fn update(&mut self, observations: &[Observation]) -> Result<UpdateReport> {
         self.step += 1;
+        self.skips = Skips::default();
         let decisions = self.associate(observations)?;
-        self.apply_decisions(observations, decisions)
+        let mut report = self.apply_decisions(observations, decisions)?;
+        report.skipped = std::mem::take(&mut self.skips);
+        Ok(report)
     }
 
     fn pose(&self) -> P {
@@ -636,36 +386,6 @@ impl<P: RobotPose> Estimator<P> for Ekf<P> {
     fn landmark_id(&self, id: FeatureId) -> Option<u64> {
         self.tracks.get(&id).and_then(|t| t.landmark_id)
     }
-}
-
-/// `pose + delta` in parameter space, angles wrapped by the pose type.
-fn add_to_pose<P: RobotPose>(pose: &P, delta: &[f64]) -> Result<P> {
-    let mut parameters = pose.parameters();
-    for (p, d) in parameters.iter_mut().zip(delta) {
-        *p += d;
-    }
-    P::from_parameters(&parameters)
-}
-
-/// `true - estimate` in pose parameters with angle differences wrapped (the NEES error).
-///
-/// For [`slam_core::Pose2`] the third parameter is the heading; for
-/// [`slam_core::Pose3`] the last three are Euler angles.
-pub fn pose_error<P: RobotPose>(truth: &P, estimate: &P) -> Vec<f64> {
-    let t = truth.parameters();
-    let e = estimate.parameters();
-    let angles_from = if P::DIM == 3 { 2 } else { 3 };
-    t.iter()
-        .zip(&e)
-        .enumerate()
-        .map(|(k, (a, b))| {
-            if k >= angles_from {
-                wrap_angle(a - b)
-            } else {
-                a - b
-            }
-        })
-        .collect()
 }
 
 #[cfg(test)]

@@ -11,6 +11,7 @@ use slam_sensors::models::RangeBearing;
 use slam_sensors::odometry::{Integration, Unicycle};
 
 use super::*;
+use crate::particles::{normalized, systematic_resample};
 
 const SIGMA_RANGE: f64 = 0.05;
 const SIGMA_BEARING: f64 = 0.02;

@@ -31,30 +31,39 @@
 //! scattered group can look normal: on the Intel log most scans kept groups 0.3-1 m thick);
 //! scans are processed after `min_travel` / `min_turn_deg` of motion.
 //!
-//! The map's features are made by a factory the caller gives (a PPCA line feature type
-//! lives outside this crate, which knows no feature type).
+//! The scan's points arrive as observations, and the map's features are made, by the types
+//! the caller names ([`LineMapTypes`]: this crate knows no feature or measurement type).
 
+mod line_map;
 mod matching;
 pub mod ppca;
 
 use std::sync::{Arc, OnceLock};
 
-use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use slam_core::nalgebra::{DMatrix, Matrix3, Vector2, Vector3};
+use slam_core::nalgebra::{DMatrix, Vector2, Vector3};
 use slam_core::{
-    Error, Estimator, Feature, FeatureMap, MotionModel, Observation, Pose3, Result, RobotPose,
-    RowOwner, UpdateReport,
+    Estimator, Feature, FeatureMap, MotionModel, Observation, Pose3, Result, RobotPose, RowOwner,
+    UpdateReport,
 };
 
-use crate::ancestry::Ancestry;
-use crate::fastslam::pvec::PVec;
-use crate::fastslam::{resample_indices, sample_motion, weighted_mean};
+use crate::lifecycle::first_failure;
+use crate::particles::{ParticleSet, stream};
+use line_map::{LineMap, ScanOutcome, match_to_own_map, process};
 pub use ppca::{Cluster, GMeansParams};
 
-/// Makes the map feature of a cluster (a PPCA line behind the slam-core traits).
-pub type ClusterFeatureFactory = Arc<dyn Fn(&Cluster) -> Result<Box<dyn Feature>> + Send + Sync>;
+/// What IPSLAM needs of the types the caller uses for its line maps: the map feature of a
+/// cluster (a PPCA line behind the slam-core traits) and the scan point an observation
+/// carries (a laser return in the sensor frame). `Arc`-shared by the filter.
+pub trait LineMapTypes: Send + Sync {
+    /// The map feature of a cluster.
+    fn cluster_feature(&self, cluster: &Cluster) -> Result<Box<dyn Feature>>;
+
+    /// The return an observation carries, in its sensor's frame (x forward, y left, m), or
+    /// `None` for an observation of something else.
+    fn scan_point(&self, observation: &Observation) -> Option<Vector2<f64>>;
+}
 
 /// How IPSLAM's particles draw their poses.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -193,10 +202,7 @@ impl IpslamParams {
             (positive(self.match_gate), "match_gate > 0"),
             (positive(self.match_point_sigma), "match_point_sigma > 0"),
         ];
-        match checks.iter().find(|(ok, _)| !ok) {
-            Some((_, what)) => Err(Error::InvalidArgument(format!("IPSLAM parameters: {what}"))),
-            None => Ok(()),
-        }
+        first_failure("IPSLAM", &checks)
     }
 
     fn matching(&self) -> matching::MatchSettings {
@@ -220,23 +226,14 @@ impl IpslamParams {
     }
 }
 
-#[derive(Clone, Debug)]
-struct Particle<P> {
-    pose: P,
-    log_weight: f64,
-    map: PVec<Cluster>,
-    /// Its pose at every step so far (shared with its ancestors').
-    path: Ancestry<P>,
-}
+/// A scan's points in the sensor frame and the sensor's mount.
+type ScanPoints = (Vec<Vector2<f64>>, Pose3);
 
 /// IPSLAM over robot poses of type `P` (see the module documentation).
 pub struct Ipslam<P: RobotPose> {
     params: IpslamParams,
-    particles: Vec<Particle<P>>,
-    factory: ClusterFeatureFactory,
-    draws: u64,
-    best: usize,
-    mean: (P, DMatrix<f64>),
+    set: ParticleSet<P, LineMap>,
+    types: Arc<dyn LineMapTypes>,
     /// The mean pose at the last processed scan.
     last_processed: Option<P>,
     /// The `scan-match` proposal: the motion model's covariance accumulated since the last
@@ -250,58 +247,33 @@ impl<P: RobotPose> std::fmt::Debug for Ipslam<P> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Ipslam")
             .field("params", &self.params)
-            .field("particles", &self.particles.len())
+            .field("particles", &self.set.particles.len())
             .field("scans_processed", &self.scans_processed)
             .finish_non_exhaustive()
     }
 }
 
-use matching::planar;
-
 impl<P: RobotPose> Ipslam<P> {
-    /// A filter whose particles all start at `pose` (the pose covariance spreads them as in
-    /// [`crate::FastSlam::new`]), with empty maps; `factory` makes the map features.
+    /// A filter whose particles start at `pose`, spread by `pose_covariance` (`P::DIM`
+    /// square; zero for a known start), with empty maps; `types` reads the scan points and
+    /// makes the map features.
     pub fn new(
         pose: P,
         pose_covariance: DMatrix<f64>,
         params: IpslamParams,
-        factory: ClusterFeatureFactory,
+        types: Arc<dyn LineMapTypes>,
     ) -> Result<Self> {
         params.validate()?;
-        // The initial spread: FastSLAM's construction, reused.
-        let seeded = crate::FastSlam::new(
-            pose,
-            pose_covariance,
-            crate::FastSlamParams {
-                particles: params.particles,
-                seed: params.seed,
-                ..Default::default()
-            },
-        )?;
-        let particles = seeded
-            .particle_poses()
-            .into_iter()
-            .map(|(pose, _)| Particle {
-                pose,
-                log_weight: 0.0,
-                map: PVec::default(),
-                path: Ancestry::default(),
-            })
-            .collect();
-        let mut filter = Ipslam {
+        let set = ParticleSet::new(pose, &pose_covariance, params.particles, params.seed)?;
+        Ok(Ipslam {
             params,
-            particles,
-            factory,
-            draws: 1,
-            best: 0,
-            mean: (pose, DMatrix::zeros(P::DIM, P::DIM)),
+            set,
+            types,
             last_processed: None,
             motion_covariance: DMatrix::zeros(P::DIM, P::DIM),
             scans_processed: 0,
             snapshot: OnceLock::new(),
-        };
-        filter.mean = filter.weighted_mean();
-        Ok(filter)
+        })
     }
 
     /// Scans processed so far.
@@ -311,7 +283,8 @@ impl<P: RobotPose> Ipslam<P> {
 
     /// The clusters of the particle with the largest weight.
     pub fn clusters(&self) -> Vec<Cluster> {
-        self.particles[self.best]
+        self.set
+            .best_particle()
             .map
             .iter()
             .map(|(_, c)| *c)
@@ -323,16 +296,10 @@ impl<P: RobotPose> Ipslam<P> {
     /// neglected), floored at 1 cm and 0.2 degrees.
     fn matching_prior(&self) -> Vector3<f64> {
         let c = &self.motion_covariance;
-        let heading = if P::DIM == 3 { 2 } else { 3 };
+        let heading = P::HEADING;
         let position = (0.5 * (c[(0, 0)] + c[(1, 1)])).max(1e-4);
         let heading = c[(heading, heading)].max(0.2f64.to_radians().powi(2));
         Vector3::new(1.0 / position, 1.0 / position, 1.0 / heading)
-    }
-
-    fn weighted_mean(&self) -> (P, DMatrix<f64>) {
-        let poses: Vec<P> = self.particles.iter().map(|p| p.pose).collect();
-        let weights: Vec<f64> = self.particles.iter().map(|p| p.log_weight).collect();
-        weighted_mean(&poses, &weights, self.best)
     }
 
     /// Whether the robot moved enough since the last processed scan.
@@ -340,158 +307,68 @@ impl<P: RobotPose> Ipslam<P> {
         let Some(last) = &self.last_processed else {
             return true;
         };
-        let d = crate::ekf::pose_error(&self.mean.0, last);
-        let (translation, rotation) = if P::DIM == 3 {
-            ((d[0] * d[0] + d[1] * d[1]).sqrt(), d[2].abs())
-        } else {
-            (
-                (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(),
-                d[3..].iter().fold(0.0f64, |a, b| a.max(b.abs())),
-            )
-        };
+        let (translation, rotation) = self.set.mean.0.distance_and_angle(last);
         translation >= self.params.min_travel || rotation >= self.params.min_turn_deg.to_radians()
     }
-}
 
-/// What one particle did with one scan.
-#[derive(Default)]
-struct ParticleStep {
-    log_likelihood: f64,
-    merged: usize,
-    added: usize,
-}
-
-/// The `scan-match` proposal for one particle: the match of the scan to its own clusters
-/// under the prior `N(pose, diag(1 / prior_information))`, then a draw from the Gaussian of
-/// the match (from the prior where too few points match).
-fn match_to_own_map<P: RobotPose>(
-    particle: &mut Particle<P>,
-    params: &IpslamParams,
-    robot_from_sensor: &Pose3,
-    points: &[Vector2<f64>],
-    prior_information: &Vector3<f64>,
-    rng: &mut impl rand::Rng,
-) {
-    let start = planar(&particle.pose.world_from_sensor(robot_from_sensor));
-    let settings = params.matching();
-    let clusters = matching::reachable(
-        particle.map.iter().map(|(_, k)| k),
-        &start.1,
-        params.max_range + settings.gate + settings.end_margin,
-    );
-    let (centre, information) =
-        match matching::refine(&clusters, points, start, prior_information, &settings) {
-            Some(m) => ((m.heading, m.translation), m.information),
-            None => (start, Matrix3::from_diagonal(prior_information)),
-        };
-    // x = L^-T z has the covariance (L L^T)^-1.
-    let Some(cholesky) = information.cholesky() else {
-        return;
-    };
-    let z = Vector3::from_fn(|_, _| -> f64 { StandardNormal.sample(rng) });
-    let Some(offset) = cholesky.l().transpose().solve_upper_triangular(&z) else {
-        return;
-    };
-    let heading = centre.0 + offset.z;
-    let translation = centre.1 + offset.xy();
-    if let Some(moved) =
-        matching::move_sensor_to(&particle.pose, robot_from_sensor, heading, &translation)
-    {
-        particle.pose = moved;
-    }
-}
-
-/// Steps 1-4 of the module documentation for one particle.
-fn process<P: RobotPose>(
-    particle: &mut Particle<P>,
-    params: &IpslamParams,
-    robot_from_sensor: &Pose3,
-    scan_clusters: &[(Cluster, Vec<Vector2<f64>>)],
-    points: &[Vector2<f64>],
-) -> ParticleStep {
-    let (heading, translation) = planar(&particle.pose.world_from_sensor(robot_from_sensor));
-    let (s, c) = heading.sin_cos();
-    let place = |p: &Vector2<f64>| Vector2::new(c * p.x - s * p.y, s * p.x + c * p.y) + translation;
-    let mut step = ParticleStep::default();
-    // Old clusters that the scan can reach.
-    let nearby: Vec<(usize, Cluster)> = particle
-        .map
-        .iter()
-        .filter(|(_, k)| {
-            (k.mean - translation).norm() <= params.max_range + 3.0 * k.principal_variance.sqrt()
-        })
-        .map(|(slot, k)| (slot, *k))
-        .collect();
-    // Eq. 18 against the map before this scan; each point floored at the outlier threshold.
-    let floor = params.outlier_likelihood.max(1e-300).ln();
-    for p in points {
-        let z = place(p);
-        let best = nearby
-            .iter()
-            .map(|(_, k)| k.log_likelihood(&z))
-            .fold(f64::NEG_INFINITY, f64::max);
-        step.log_likelihood += best.max(floor);
-    }
-    // Correspondence (section III-D), greedy by centre distance.
-    let placed: Vec<(Cluster, Vec<Vector2<f64>>)> = scan_clusters
-        .iter()
-        .map(|(k, members)| {
-            (
-                k.transformed(heading, &translation),
-                members.iter().map(place).collect(),
-            )
-        })
-        .collect();
-    let cos_limit = params.match_angle_deg.to_radians().cos();
-    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
-    for (j, (new, _)) in placed.iter().enumerate() {
-        for (i, (_, old)) in nearby.iter().enumerate() {
-            if old.direction.dot(&new.direction).abs() < cos_limit {
-                continue;
-            }
-            let offset = new.mean - old.mean;
-            let distance = offset.norm();
-            let normal = Vector2::new(-old.direction.y, old.direction.x);
-            // The paper's rule (centres within the sum of the principal variances), or,
-            // an addition, segments that overlap or touch (half-lengths sqrt(3 lambda)).
-            let extents = (3.0 * old.principal_variance).sqrt()
-                + (3.0 * new.principal_variance).sqrt()
-                + params.max_normal_distance;
-            let reach = (old.principal_variance + new.principal_variance).max(extents);
-            if distance <= reach && offset.dot(&normal).abs() <= params.max_normal_distance {
-                pairs.push((distance, i, j));
+    /// The scan's points among the observations, those within range, with their sensor
+    /// mount (`None` when no observation is a scan point), and how many observations were
+    /// something else.
+    fn scan_points(&self, observations: &[Observation]) -> (Option<ScanPoints>, usize) {
+        let mut scan: Option<ScanPoints> = None;
+        let mut others = 0;
+        for observation in observations {
+            match self.types.scan_point(observation) {
+                Some(p) => {
+                    let (points, _) = scan.get_or_insert_with(|| {
+                        (
+                            Vec::with_capacity(observations.len()),
+                            observation.robot_from_sensor,
+                        )
+                    });
+                    if p.iter().all(|v| v.is_finite()) && p.norm() <= self.params.max_range {
+                        points.push(p);
+                    }
+                }
+                None => others += 1,
             }
         }
+        (scan, others)
     }
-    pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-    let mut old_used = vec![false; nearby.len()];
-    let mut new_used = vec![false; placed.len()];
-    for (_, i, j) in pairs {
-        if old_used[i] || new_used[j] {
-            continue;
-        }
-        let (slot, old) = nearby[i];
-        let (new, members) = &placed[j];
-        let merged = ppca::merge(&old, new, members);
-        // A merge that makes a thick cluster (two walls at a corner) is refused.
-        if merged.sigma2.sqrt() > params.new_cluster_max_sigma {
-            continue;
-        }
-        old_used[i] = true;
-        new_used[j] = true;
-        particle.map.set(slot, Some(merged));
-        step.merged += 1;
+
+    /// Steps 1-4 of the module documentation for every particle (after the `scan-match`
+    /// proposal, when configured), in parallel.
+    fn process_scan(
+        &mut self,
+        robot_from_sensor: &Pose3,
+        points: &[Vector2<f64>],
+    ) -> Vec<ScanOutcome> {
+        let scan_clusters = ppca::gmeans(points, &self.params.gmeans());
+        let params = &self.params;
+        let prior = self.matching_prior();
+        let scan_match = params.proposal == IpslamProposal::ScanMatch;
+        let seed = self.set.seed();
+        let draw = if scan_match { self.set.next_draw() } else { 0 };
+        self.set
+            .particles
+            .par_iter_mut()
+            .enumerate()
+            .map(|(index, particle)| {
+                if scan_match {
+                    let mut rng = stream(seed, draw, index as u64);
+                    match_to_own_map(
+                        particle,
+                        params,
+                        robot_from_sensor,
+                        points,
+                        &prior,
+                        &mut rng,
+                    );
+                }
+                process(particle, params, robot_from_sensor, &scan_clusters, points)
+            })
+            .collect()
     }
-    for (j, (new, _)) in placed.into_iter().enumerate() {
-        if !new_used[j]
-            && new.count >= params.new_cluster_min_points
-            && new.sigma2.sqrt() <= params.new_cluster_max_sigma
-        {
-            particle.map.push(new);
-            step.added += 1;
-        }
-    }
-    step
 }
 
 impl<P: RobotPose> Estimator<P> for Ipslam<P> {
@@ -502,134 +379,78 @@ impl<P: RobotPose> Estimator<P> for Ipslam<P> {
     /// Every particle draws its increment from the motion model (eq. 17); with the
     /// `scan-match` proposal it takes the mean increment and the covariance accumulates.
     fn predict(&mut self, motion: &dyn MotionModel<P>) -> Result<()> {
-        let poses: Vec<P> = self.particles.iter().map(|p| p.pose).collect();
-        let poses = if self.params.proposal == IpslamProposal::ScanMatch {
-            let prediction = motion.predict(&self.mean.0)?;
-            slam_core::ensure_finite(prediction.cov_control.as_slice(), "motion noise")?;
-            self.motion_covariance = prediction.propagate_covariance(&self.motion_covariance)?;
-            let control = motion.control();
-            poses
-                .iter()
-                .map(|pose| motion.apply_control(pose, &control))
-                .collect::<Result<Vec<P>>>()?
-        } else {
-            sample_motion(&poses, motion, self.params.seed, self.draws)?
-        };
-        self.draws += 1;
-        for (particle, pose) in self.particles.iter_mut().zip(poses) {
+        if self.params.proposal != IpslamProposal::ScanMatch {
+            return self.set.sample_motion(motion);
+        }
+        let prediction = motion.predict(&self.set.mean.0)?;
+        slam_core::ensure_finite(prediction.cov_control.as_slice(), "motion noise")?;
+        self.motion_covariance = prediction.propagate_covariance(&self.motion_covariance)?;
+        let control = motion.control();
+        let poses = self
+            .set
+            .particles
+            .iter()
+            .map(|particle| motion.apply_control(&particle.pose, &control))
+            .collect::<Result<Vec<P>>>()?;
+        for (particle, pose) in self.set.particles.iter_mut().zip(poses) {
             particle.pose = pose;
         }
-        self.mean = self.weighted_mean();
+        // The draw the motion proposal would have used, so that both proposals number their
+        // streams alike.
+        self.set.next_draw();
+        self.set.update_mean();
         Ok(())
     }
 
-    /// IPSLAM builds its map from scan points; extracted observations are not used.
+    /// Processes the scan points among `observations` (one scan) once the robot has moved
+    /// enough; other observations are rejected.
     fn update(&mut self, observations: &[Observation]) -> Result<UpdateReport> {
-        Ok(UpdateReport {
-            rejected: observations.len(),
+        let (scan, others) = self.scan_points(observations);
+        let rejected_only = UpdateReport {
+            rejected: others,
             ..Default::default()
-        })
-    }
-
-    fn uses_scan_points(&self) -> bool {
-        true
-    }
-
-    fn update_points(
-        &mut self,
-        robot_from_sensor: &Pose3,
-        points: &[Vector2<f64>],
-    ) -> Result<UpdateReport> {
-        if !self.moved_enough() {
-            return Ok(UpdateReport::default());
-        }
-        let points: Vec<Vector2<f64>> = points
-            .iter()
-            .filter(|p| p.iter().all(|v| v.is_finite()) && p.norm() <= self.params.max_range)
-            .copied()
-            .collect();
-        let scan_clusters = ppca::gmeans(&points, &self.params.gmeans());
-        let params = &self.params;
-        let prior = self.matching_prior();
-        let draw = self.draws;
-        if params.proposal == IpslamProposal::ScanMatch {
-            self.draws += 1;
-        }
-        let steps: Vec<ParticleStep> = self
-            .particles
-            .par_iter_mut()
-            .enumerate()
-            .map(|(index, particle)| {
-                if params.proposal == IpslamProposal::ScanMatch {
-                    let mut rng = crate::fastslam::stream(params.seed, draw, index as u64);
-                    match_to_own_map(
-                        particle,
-                        params,
-                        robot_from_sensor,
-                        &points,
-                        &prior,
-                        &mut rng,
-                    );
-                }
-                process(particle, params, robot_from_sensor, &scan_clusters, &points)
-            })
-            .collect();
-        self.motion_covariance.fill(0.0);
-        for (particle, step) in self.particles.iter_mut().zip(&steps) {
-            particle.log_weight += self.params.likelihood_scale * step.log_likelihood;
-        }
-        self.best = crate::fastslam::normalize_log_weights(
-            self.particles
-                .iter_mut()
-                .map(|p| &mut p.log_weight)
-                .collect(),
-        );
-        let report = UpdateReport {
-            associated: steps[self.best].merged,
-            new_features: steps[self.best].added,
-            rejected: 0,
-            nis: Vec::new(),
         };
-        self.mean = self.weighted_mean();
-        let weights: Vec<f64> = self.particles.iter().map(|p| p.log_weight).collect();
-        if let Some(chosen) = resample_indices(
-            &weights,
-            self.params.resample_threshold,
-            self.params.seed,
-            self.draws,
-        ) {
-            self.draws += 1;
-            let best = self.best;
-            self.particles = chosen
-                .iter()
-                .map(|&i| Particle {
-                    log_weight: 0.0,
-                    ..self.particles[i].clone()
-                })
-                .collect();
-            self.best = chosen.iter().position(|&i| i == best).unwrap_or(0);
+        let Some((points, robot_from_sensor)) = scan else {
+            return Ok(rejected_only);
+        };
+        if !self.moved_enough() {
+            return Ok(rejected_only);
         }
-        self.last_processed = Some(self.mean.0);
+        let outcomes = self.process_scan(&robot_from_sensor, &points);
+        self.motion_covariance.fill(0.0);
+        let scale = self.params.likelihood_scale;
+        self.set
+            .weigh(outcomes.iter().map(|o| scale * o.log_likelihood));
+        let best = &outcomes[self.set.best];
+        let report = UpdateReport {
+            associated: best.merged,
+            new_features: best.added,
+            rejected: others,
+            ..Default::default()
+        };
+        self.set.update_mean();
+        self.set.resample(self.params.resample_threshold);
+        self.last_processed = Some(self.set.mean.0);
         self.scans_processed += 1;
         self.snapshot = OnceLock::new();
         Ok(report)
     }
 
     fn pose(&self) -> P {
-        self.mean.0
+        self.set.mean.0
     }
 
     fn pose_covariance(&self) -> DMatrix<f64> {
-        self.mean.1.clone()
+        self.set.mean.1.clone()
     }
 
-    /// The clusters of the particle with the largest weight, as features of the factory.
+    /// The clusters of the particle with the largest weight, as the caller's features.
     fn map(&self) -> &FeatureMap {
         self.snapshot.get_or_init(|| {
             let mut map = FeatureMap::new();
-            for (_, cluster) in self.particles[self.best].map.iter() {
-                if let Ok(feature) = (self.factory)(cluster) {
-                    // A factory's feature is unshared: insertion succeeds.
+            for (_, cluster) in self.set.best_particle().map.iter() {
+                if let Ok(feature) = self.types.cluster_feature(cluster) {
+                    // A new feature is unshared: insertion succeeds.
                     let _ = map.insert(feature);
                 }
             }
@@ -643,15 +464,13 @@ impl<P: RobotPose> Estimator<P> for Ipslam<P> {
     }
 
     fn end_step(&mut self) {
-        for particle in &mut self.particles {
-            particle.path.push(particle.pose);
-        }
+        self.set.end_step();
     }
 
     /// The path of the particle with the largest weight (whose clusters
     /// [`map`](Estimator::map) returns).
     fn map_path(&self) -> Option<Vec<P>> {
-        Some(self.particles[self.best].path.to_vec())
+        Some(self.set.best_particle().path.to_vec())
     }
 }
 

@@ -5,6 +5,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use slam_core::nalgebra::{DMatrix, Vector2};
 use slam_core::{Estimator, MotionModel, Pose2, Pose3};
+use slam_sensors::models::LinePoint;
 use slam_sensors::odometry::{Integration, Unicycle};
 
 use super::*;
@@ -24,6 +25,38 @@ pub(crate) fn ray(origin: Vector2<f64>, angle: f64) -> f64 {
     best
 }
 
+/// Scan points as [`LinePoint`] observations; no map features (the tests look at the
+/// clusters).
+struct PointsOnly;
+
+impl LineMapTypes for PointsOnly {
+    fn cluster_feature(&self, _: &Cluster) -> slam_core::Result<Box<dyn Feature>> {
+        Err(slam_core::Error::InvalidArgument(
+            "no features in this test".into(),
+        ))
+    }
+
+    fn scan_point(&self, observation: &Observation) -> Option<Vector2<f64>> {
+        observation
+            .measurement
+            .as_any()
+            .downcast_ref::<LinePoint>()
+            .map(|p| p.point)
+    }
+}
+
+/// The observations of one scan's points.
+pub(crate) fn point_observations(points: &[Vector2<f64>], mount: &Pose3) -> Vec<Observation> {
+    points
+        .iter()
+        .map(|p| Observation {
+            robot_from_sensor: *mount,
+            measurement: Box::new(LinePoint::new(*p, 0.01).unwrap()),
+            landmark_id: None,
+        })
+        .collect()
+}
+
 /// Scans, then drives a robot 30 steps through the room `[0, 10] x [0, 6]` with odometry scaled by
 /// `odometry_scale` and turning `odometry_turn_bias` rad/s too much (plus small noise), scanning
 /// every step; returns the largest position error and the filter.
@@ -34,13 +67,9 @@ fn drive_through_the_room(
 ) -> (f64, Ipslam<Pose2>) {
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     let range_noise = Normal::new(0.0, 0.01).unwrap();
-    let factory: ClusterFeatureFactory = Arc::new(|_: &Cluster| {
-        Err(slam_core::Error::InvalidArgument(
-            "no features in this test".into(),
-        ))
-    });
     let start = Pose2::new(2.0, 3.0, 0.0);
-    let mut filter = Ipslam::new(start, DMatrix::zeros(3, 3), params, factory).unwrap();
+    let mut filter =
+        Ipslam::new(start, DMatrix::zeros(3, 3), params, Arc::new(PointsOnly)).unwrap();
     let mut truth = start;
     let mut worst: f64 = 0.0;
     for step in 0..=30 {
@@ -67,7 +96,9 @@ fn drive_through_the_room(
                 Vector2::new(range * bearing.cos(), range * bearing.sin())
             })
             .collect();
-        filter.update_points(&Pose3::identity(), &points).unwrap();
+        filter
+            .update(&point_observations(&points, &Pose3::identity()))
+            .unwrap();
         worst = worst.max((filter.pose().translation() - truth.translation()).norm());
     }
     assert_eq!(filter.scans_processed(), 31);
@@ -127,11 +158,34 @@ fn scan_matching_corrects_biased_odometry() {
 
 #[test]
 fn observations_are_not_used_and_bad_parameters_are_errors() {
-    let factory: ClusterFeatureFactory =
-        Arc::new(|_: &Cluster| Err(slam_core::Error::InvalidArgument("none".into())));
     let bad = IpslamParams {
         match_angle_deg: 120.0,
         ..Default::default()
     };
-    assert!(Ipslam::new(Pose2::identity(), DMatrix::zeros(3, 3), bad, factory).is_err());
+    assert!(
+        Ipslam::new(
+            Pose2::identity(),
+            DMatrix::zeros(3, 3),
+            bad,
+            Arc::new(PointsOnly)
+        )
+        .is_err()
+    );
+    // Observations that are not scan points are rejected and change nothing.
+    let mut filter = Ipslam::new(
+        Pose2::identity(),
+        DMatrix::zeros(3, 3),
+        IpslamParams::default(),
+        Arc::new(PointsOnly),
+    )
+    .unwrap();
+    let other = Observation {
+        robot_from_sensor: Pose3::identity(),
+        measurement: Box::new(
+            slam_sensors::models::RangeBearing::new(2.0, 0.1, 0.1, 0.01).unwrap(),
+        ),
+        landmark_id: None,
+    };
+    let report = filter.update(&[other]).unwrap();
+    assert_eq!((report.rejected, filter.scans_processed()), (1, 0));
 }

@@ -32,15 +32,18 @@
 //! [`carmen_text`] and [`write_carmen`] write the scans and the dead-reckoned odometry of a
 //! [`Dataset`] as `ROBOTLASER1` and `ODOM` lines that this reader reads back.
 
+use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::path::Path;
 
 use slam_core::nalgebra::Vector3;
 use slam_core::{Pose2, Pose3};
 
-use super::{Fields, at, count_skipped, numbered_lines, read_text, write_atomically};
+use super::{Fields, Lines, at, write_atomically};
 use crate::error::{Result, SensorError};
-use crate::events::{Clock, Dataset, Event, TruthKind};
+use crate::events::{
+    Clock, Dataset, DatasetInfo, Event, EventStream, Pump, SkipCounter, Step, TimedEvent, TruthKind,
+};
 use crate::odometry::{OdometryNoise, PoseIncrement};
 use crate::scan::LaserScan;
 
@@ -97,7 +100,7 @@ enum Record {
 /// [`TruthKind::Reference`] with the line's robot pose; each `ODOM` line after the first gives
 /// an [`Event::Motion`] with the [`PoseIncrement`] from the previous `ODOM` pose. Event times
 /// are line numbers. Known lines with the wrong field count or with non-numeric or non-finite
-/// numbers are errors naming `file:line`.
+/// numbers are errors naming `file:line`. This is [`stream_carmen`] collected.
 ///
 /// ```
 /// use slam_sensors::data::{CarmenOptions, read_carmen};
@@ -114,59 +117,117 @@ enum Record {
 /// assert_eq!(data.events[0].time, 3.0); // the FLASER line
 /// ```
 pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<Dataset> {
+    stream_carmen(path, options)?.into_dataset()
+}
+
+/// Reads a CARMEN log one line at a time: the events of [`read_carmen`], in the same order.
+///
+/// Bad options and a missing or unreadable file are errors of this call; a malformed line is
+/// an `Err` item when the stream reaches it. When neither the options nor a laser line give
+/// the maximum range, the first such line makes the stream read the whole file once more,
+/// quickly, for its largest reading.
+///
+/// ```
+/// use slam_sensors::data::{CarmenOptions, stream_carmen};
+/// let dir = tempfile::tempdir().unwrap();
+/// let path = dir.path().join("carmen-stream-doc.log");
+/// std::fs::write(&path, "FLASER 3 1.0 2.0 5.0 0.1 0 0 0.1 0 0 1.5 host 1.5\n\
+///     ODOM 0 0 0 0 0 0 x host 1.0\n").unwrap();
+/// let mut stream = stream_carmen(&path, &CarmenOptions::default()).unwrap();
+/// assert_eq!(stream.next().unwrap().unwrap().time, 1.0); // the scan
+/// assert_eq!(stream.next().unwrap().unwrap().time, 1.0); // its reference pose
+/// let e = stream.next().unwrap().unwrap_err().to_string();
+/// assert!(e.ends_with("carmen-stream-doc.log:2: field 8 (ipc_timestamp): expected a number, got `x`"), "{e}");
+/// assert!(stream.next().is_none());
+/// ```
+pub fn stream_carmen(path: &Path, options: &CarmenOptions) -> Result<EventStream> {
     check_options(options)?;
-    let text = read_text(path)?;
+    let lines = Lines::open(path)?;
     let name = path
         .file_name()
         .unwrap_or(path.as_os_str())
-        .to_string_lossy();
-    let mut dataset = Dataset::new(name, Clock::Sequence);
-    let mut records = Vec::new();
-    for (line, content) in numbered_lines(&text) {
-        let fields = Fields::whitespace(path, line, content);
-        match parse_line(&fields, options)? {
-            Some(record) => records.push((line, record)),
-            None if content.trim_start().starts_with('#') => count_skipped(&mut dataset, "#"),
-            None if fields.len() > 0 => count_skipped(&mut dataset, fields.first()),
-            None => {}
-        }
-    }
-    let file_max = largest_range(&records);
-    let mut previous_odometry: Option<Pose2> = None;
-    for (line, record) in records {
+        .to_string_lossy()
+        .into_owned();
+    let info = DatasetInfo {
+        name,
+        clock: Clock::Sequence,
+        landmarks: Vec::new(),
+    };
+    let skipped = SkipCounter::default();
+    let reader = CarmenReader {
+        lines,
+        options: options.clone(),
+        skipped: skipped.clone(),
+        file_max: None,
+        previous_odometry: None,
+    };
+    Ok(EventStream::new(info, Pump::new(reader)).with_skipped(skipped))
+}
+
+/// The state of a [`stream_carmen`] stream.
+struct CarmenReader {
+    lines: Lines,
+    options: CarmenOptions,
+    skipped: SkipCounter,
+    /// The largest reading of the file, once a line has needed it.
+    file_max: Option<f64>,
+    previous_odometry: Option<Pose2>,
+}
+
+impl Step for CarmenReader {
+    fn step(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<bool> {
+        let Some(next) = self.lines.next() else {
+            return Ok(false);
+        };
+        let (line, content) = next?;
+        let path = self.lines.path();
+        let fields = Fields::whitespace(path, line, &content);
         let time = line as f64;
-        match record {
-            Record::Laser(laser) => {
-                let max_range = options.max_range.or(laser.max_range).unwrap_or(file_max);
+        match parse_line(&fields, &self.options)? {
+            Some(Record::Laser(laser)) => {
+                let max_range = match self.options.max_range.or(laser.max_range) {
+                    Some(max_range) => max_range,
+                    None => match self.file_max {
+                        Some(file_max) => file_max,
+                        None => *self.file_max.insert(largest_range(path)?),
+                    },
+                };
                 let pose = laser.robot_pose;
-                let (scan, robot_from_sensor) =
-                    to_scan(laser, options.min_range, max_range).map_err(|e| at(path, line, e))?;
-                dataset.push(
+                let (scan, robot_from_sensor) = to_scan(laser, self.options.min_range, max_range)
+                    .map_err(|e| at(path, line, e))?;
+                out.push_back(TimedEvent {
                     time,
-                    Event::Scan {
+                    event: Event::Scan {
                         scan,
                         robot_from_sensor,
                     },
-                );
-                dataset.push(
+                });
+                out.push_back(TimedEvent {
                     time,
-                    Event::GroundTruth {
+                    event: Event::GroundTruth {
                         pose,
                         kind: TruthKind::Reference,
                     },
-                );
+                });
             }
-            Record::Odometry(pose) => {
-                if let Some(previous) = previous_odometry {
-                    let step = PoseIncrement::between(&previous, &pose, &options.odometry_noise)
-                        .map_err(|e| at(path, line, e))?;
-                    dataset.push(time, Event::Motion(Box::new(step)));
+            Some(Record::Odometry(pose)) => {
+                if let Some(previous) = self.previous_odometry {
+                    let step =
+                        PoseIncrement::between(&previous, &pose, &self.options.odometry_noise)
+                            .map_err(|e| at(path, line, e))?;
+                    out.push_back(TimedEvent {
+                        time,
+                        event: Event::Motion(Box::new(step)),
+                    });
                 }
-                previous_odometry = Some(pose);
+                self.previous_odometry = Some(pose);
             }
+            None if content.trim_start().starts_with('#') => self.skipped.count("#"),
+            None if fields.len() > 0 => self.skipped.count(fields.first()),
+            None => {}
         }
+        Ok(true)
     }
-    Ok(dataset)
 }
 
 fn check_options(options: &CarmenOptions) -> Result<()> {
@@ -185,15 +246,40 @@ fn check_options(options: &CarmenOptions) -> Result<()> {
     }
 }
 
-/// The largest reading of any laser line (0 when there is none).
-fn largest_range(records: &[(usize, Record)]) -> f64 {
-    records
-        .iter()
-        .filter_map(|(_, r)| match r {
-            Record::Laser(l) => Some(l.ranges.iter().copied().fold(0.0, f64::max)),
-            Record::Odometry(_) => None,
-        })
-        .fold(0.0, f64::max)
+/// The largest reading of any laser line of the file (0 when there is none), from a pass
+/// that reads only the readings. Lines that do not parse are left out: the stream reports
+/// them when it gets there.
+fn largest_range(path: &Path) -> Result<f64> {
+    let mut largest = 0.0;
+    for next in Lines::open(path)? {
+        let (_, content) = next?;
+        if let Some(line_max) = line_largest_range(&content) {
+            largest = f64::max(largest, line_max);
+        }
+    }
+    Ok(largest)
+}
+
+/// The largest reading of a laser line (folded from 0 as the reader's ranges would be), or
+/// `None` for other lines and for readings that do not parse as finite numbers.
+fn line_largest_range(content: &str) -> Option<f64> {
+    let mut fields = content.split_whitespace();
+    let first_reading = match fields.next()? {
+        "FLASER" | "RLASER" => 0,
+        "ROBOTLASER1" => 7,
+        _ => return None,
+    };
+    let mut fields = fields.skip(first_reading);
+    let n: usize = fields.next()?.parse().ok()?;
+    let mut largest = 0.0;
+    for _ in 0..n {
+        let range: f64 = fields.next()?.parse().ok()?;
+        if !range.is_finite() {
+            return None;
+        }
+        largest = f64::max(largest, range);
+    }
+    Some(largest)
 }
 
 fn to_scan(laser: LaserLine, min_range: f64, max_range: f64) -> Result<(LaserScan, Pose3)> {

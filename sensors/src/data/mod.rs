@@ -1,46 +1,53 @@
-//! Dataset readers: each turns a dataset into one [`crate::Dataset`] event stream.
+//! Dataset readers: each turns a dataset into one event stream, read one line at a time
+//! ([`crate::EventStream`], `stream_*`) or collected in memory ([`crate::Dataset`], `read_*`:
+//! the same events).
 //!
 //! | reader | data | clock | events |
 //! |---|---|---|---|
-//! | [`read_carmen`] | CARMEN logs (plain or gzip), e.g. the Radish "corrected" logs | line numbers ([`Clock::Sequence`]) | scans, reference poses, pose increments |
-//! | [`read_victoria_park`] | Victoria Park (`converted/` CSV files) | seconds | Ackermann motion, pole observations, GPS |
-//! | [`read_mrclam`] | UTIAS MR.CLAM dataset 1, one robot | seconds | unicycle motion, range-bearing observations, landmark map |
+//! | [`stream_carmen`], [`read_carmen`] | CARMEN logs (plain or gzip), e.g. the Radish "corrected" logs | line numbers ([`Clock::Sequence`]) | scans, reference poses, pose increments |
+//! | [`stream_victoria_park`], [`read_victoria_park`] | Victoria Park (`converted/` CSV files) | seconds | Ackermann motion, pole observations, GPS |
+//! | [`stream_mrclam`], [`read_mrclam`] | UTIAS MR.CLAM dataset 1, one robot | seconds | unicycle motion, range-bearing observations, landmark map |
 //! | [`read_tum`] | TUM trajectories (`t x y z qx qy qz qw`) | seconds | stamped poses (not an event stream) |
-//! | [`read_rb2d`] | rb2d text logs (`shared/formats/rb2d.md`) | `k * dt` seconds | motion, range-bearing observations, true poses, landmark map |
+//! | [`stream_rb2d`], [`read_rb2d`] | rb2d text logs (`shared/formats/rb2d.md`) | `k * dt` seconds | motion, range-bearing observations, true poses, landmark map |
+//!
+//! [`odometry_from_poses`] is a stream adapter: it replaces a log's motion by noisy odometry
+//! built from its reference poses.
 //!
 //! Conventions shared by every reader:
 //!
 //! - A malformed line is an error that names `file:line` (1-based) and the reason; readers
-//!   never panic on their input.
+//!   never panic on their input. A `stream_*` call fails for what it can know up front (bad
+//!   options, missing files, bad headers); a malformed line further down is an `Err` item of
+//!   the stream when it gets there, after the events of the lines before it.
 //! - A [`Event::Motion`] carries the time at which the motion **ends**, as the simulator does:
 //!   the increment from time `t0` to `t1` is stamped `t1`. When a measurement falls strictly
 //!   inside an odometry interval, the interval is split there: motion up to the measurement,
 //!   the measurement, then the rest of the interval with the same controls.
-//! - Lines that carry nothing the reader uses are counted in [`crate::Dataset::skipped`].
+//! - Lines that carry nothing the reader uses are counted in [`crate::Dataset::skipped`]
+//!   ([`crate::EventStream::skipped`] while streaming).
 //!
 //! [`Clock::Sequence`]: crate::Clock::Sequence
 
 pub mod carmen;
 pub mod mrclam;
+pub mod pose_odometry;
 pub mod rb2d;
 pub mod tum;
 pub mod victoria_park;
 
-pub use carmen::{CarmenOptions, read_carmen};
-pub use mrclam::{MrclamOptions, read_mrclam};
-pub use rb2d::read_rb2d;
+pub use carmen::{CarmenOptions, read_carmen, stream_carmen};
+pub use mrclam::{MrclamOptions, read_mrclam, stream_mrclam};
+pub use pose_odometry::{PoseOdometryParams, odometry_from_poses};
+pub use rb2d::{read_rb2d, stream_rb2d};
 pub use tum::{StampedPose, read_tum, write_atomically, write_tum};
-pub use victoria_park::{VictoriaParkOptions, read_victoria_park};
+pub use victoria_park::{VictoriaParkOptions, read_victoria_park, stream_victoria_park};
 
-use std::io::Read;
-use std::path::Path;
+use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use crate::error::{Result, SensorError};
-use crate::events::{Dataset, Event};
-
-/// One row of a control log: `(line number, time s, (first control, second control))`.
-type ControlRow = (usize, f64, (f64, f64));
+use crate::events::{Event, TimedEvent};
 
 /// One line of a data file split into fields, with its location for error messages.
 pub(crate) struct Fields<'a> {
@@ -222,9 +229,84 @@ pub(crate) fn at(file: &Path, line: usize, error: SensorError) -> SensorError {
     SensorError::parse(file, line, reason(&error))
 }
 
-/// Counts one unused line under `key`.
-pub(crate) fn count_skipped(dataset: &mut Dataset, key: &str) {
-    *dataset.skipped.entry(key.to_string()).or_default() += 1;
+/// The lines of a text file, read one at a time: gunzipped when the file starts with the gzip
+/// magic bytes `1f 8b`, with 1-based numbers, `\n` and `\r\n` endings stripped as
+/// [`str::lines`] does, and invalid UTF-8 replaced as [`read_text`] does.
+pub(crate) struct Lines {
+    path: PathBuf,
+    reader: Box<dyn BufRead + Send>,
+    number: usize,
+    buffer: Vec<u8>,
+    done: bool,
+}
+
+impl Lines {
+    /// Opens `path`; an I/O error (missing file, unreadable start) names it.
+    pub(crate) fn open(path: &Path) -> Result<Lines> {
+        let io = |e| SensorError::io(path, e);
+        let mut file = std::fs::File::open(path).map_err(io)?;
+        let mut magic = [0u8; 2];
+        let mut read = 0;
+        while read < magic.len() {
+            match file.read(&mut magic[read..]) {
+                Ok(0) => break,
+                Ok(n) => read += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(io(e)),
+            }
+        }
+        file.seek(SeekFrom::Start(0)).map_err(io)?;
+        let reader: Box<dyn BufRead + Send> = if read == 2 && magic == [0x1f, 0x8b] {
+            Box::new(BufReader::new(flate2::read::MultiGzDecoder::new(file)))
+        } else {
+            Box::new(BufReader::new(file))
+        };
+        Ok(Lines {
+            path: path.to_path_buf(),
+            reader,
+            number: 0,
+            buffer: Vec::new(),
+            done: false,
+        })
+    }
+
+    /// The file.
+    pub(crate) fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Iterator for Lines {
+    /// `(line number, text)`, or the I/O error that ends the file.
+    type Item = Result<(usize, String)>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        self.buffer.clear();
+        match self.reader.read_until(b'\n', &mut self.buffer) {
+            Ok(0) => {
+                self.done = true;
+                None
+            }
+            Ok(_) => {
+                self.number += 1;
+                let mut bytes = self.buffer.as_slice();
+                if let Some(rest) = bytes.strip_suffix(b"\n") {
+                    bytes = rest.strip_suffix(b"\r").unwrap_or(rest);
+                }
+                Some(Ok((
+                    self.number,
+                    String::from_utf8_lossy(bytes).into_owned(),
+                )))
+            }
+            Err(e) => {
+                self.done = true;
+                Some(Err(SensorError::io(&self.path, e)))
+            }
+        }
+    }
 }
 
 /// Controls held constant from `start` to `end` (one odometry row and the next row's time).
@@ -240,75 +322,217 @@ pub(crate) struct Interval<C> {
     pub line: usize,
 }
 
-/// Checks that times are non-decreasing, naming the first line where one goes backwards.
-pub(crate) fn check_non_decreasing(file: &Path, rows: &[(usize, f64)]) -> Result<()> {
-    for pair in rows.windows(2) {
-        let ((_, t0), (line, t1)) = (pair[0], pair[1]);
-        if t1 < t0 {
-            return Err(SensorError::parse(
-                file,
-                line,
-                format!("time goes backwards: {t1} after {t0}"),
-            ));
-        }
-    }
-    Ok(())
-}
-
 /// Intervals between consecutive odometry rows `(line, time, control)`: row `k` holds from its
 /// time to row `k + 1`'s. The last row has no duration and gives no interval. Times must be
-/// non-decreasing; equal times give intervals of zero duration.
-pub(crate) fn intervals<C: Copy>(
-    file: &Path,
-    rows: &[(usize, f64, C)],
-) -> Result<Vec<Interval<C>>> {
-    let times: Vec<(usize, f64)> = rows.iter().map(|&(line, t, _)| (line, t)).collect();
-    check_non_decreasing(file, &times)?;
-    Ok(rows
-        .windows(2)
-        .map(|w| Interval {
-            start: w[0].1,
-            end: w[1].1,
-            control: w[0].2,
-            line: w[0].0,
-        })
-        .collect())
+/// non-decreasing (a row going backwards is an error naming its line); equal times give
+/// intervals of zero duration.
+pub(crate) struct Intervals<C, R> {
+    file: PathBuf,
+    rows: R,
+    previous: Option<(usize, f64, C)>,
 }
 
-/// Merges a motion stream with point events (measurements, GPS fixes) by time, appending to
-/// `dataset`.
-///
-/// Points are stably sorted by time. A point at or before an interval's start comes before
-/// that interval; a point strictly inside an interval splits it: `motion(start..t)`, the
-/// point, then `motion(t..end)` with the same controls. Points after the last interval come
-/// last. `make(interval, dt)` builds the motion event of a piece of duration `dt`; each
-/// motion event is stamped with the time its piece ends.
-pub(crate) fn merge_by_time<C>(
-    dataset: &mut Dataset,
-    intervals: &[Interval<C>],
-    mut points: Vec<(f64, Event)>,
-    mut make: impl FnMut(&Interval<C>, f64) -> Result<Event>,
-) -> Result<()> {
-    points.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut points = points.into_iter().peekable();
-    for interval in intervals {
-        while let Some((time, event)) = points.next_if(|p| p.0 <= interval.start) {
-            dataset.push(time, event);
+impl<C, R> Intervals<C, R> {
+    pub(crate) fn new(file: &Path, rows: R) -> Self {
+        Intervals {
+            file: file.to_path_buf(),
+            rows,
+            previous: None,
         }
-        let mut from = interval.start;
-        while let Some((time, event)) = points.next_if(|p| p.0 < interval.end) {
-            if time > from {
-                dataset.push(time, make(interval, time - from)?);
-                from = time;
+    }
+}
+
+impl<C: Copy, R: Iterator<Item = Result<(usize, f64, C)>>> Iterator for Intervals<C, R> {
+    type Item = Result<Interval<C>>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            let row = match self.rows.next()? {
+                Ok(row) => row,
+                Err(e) => return Some(Err(e)),
+            };
+            let Some((line, start, control)) = self.previous.replace(row) else {
+                continue;
+            };
+            let (next_line, end, _) = row;
+            if end < start {
+                return Some(Err(SensorError::parse(
+                    &self.file,
+                    next_line,
+                    format!("time goes backwards: {end} after {start}"),
+                )));
             }
-            dataset.push(time, event);
+            return Some(Ok(Interval {
+                start,
+                end,
+                control,
+                line,
+            }));
         }
-        dataset.push(interval.end, make(interval, interval.end - from)?);
     }
-    for (time, event) in points {
-        dataset.push(time, event);
+}
+
+/// A point event (a measurement, a GPS fix) with its time and the line it comes from.
+#[derive(Debug)]
+pub(crate) struct Point {
+    /// The line, for errors.
+    pub line: usize,
+    /// Seconds.
+    pub time: f64,
+    /// The event.
+    pub event: Event,
+}
+
+/// The points of one file, checked to be in time order (by [`f64::total_cmp`], the order
+/// that [`merge_by_time`] relies on); a point going backwards is an error naming its line.
+pub(crate) fn in_time_order<I: Iterator<Item = Result<Point>>>(
+    file: &Path,
+    points: I,
+) -> impl Iterator<Item = Result<Point>> + use<I> {
+    let file = file.to_path_buf();
+    let mut last: Option<f64> = None;
+    points.map(move |point| {
+        let point = point?;
+        if let Some(before) = last
+            && point.time.total_cmp(&before).is_lt()
+        {
+            return Err(SensorError::parse(
+                &file,
+                point.line,
+                format!("time goes backwards: {} after {before}", point.time),
+            ));
+        }
+        last = Some(point.time);
+        Ok(point)
+    })
+}
+
+/// Two time-ordered point streams merged by time; on equal times `first`'s points come first
+/// (the order of a stable sort of `first` followed by `second`).
+pub(crate) fn merge_points<A, B>(first: A, second: B) -> impl Iterator<Item = Result<Point>>
+where
+    A: Iterator<Item = Result<Point>>,
+    B: Iterator<Item = Result<Point>>,
+{
+    let (mut a, mut b) = (first.peekable(), second.peekable());
+    std::iter::from_fn(move || match (a.peek(), b.peek()) {
+        (Some(Err(_)), _) | (Some(Ok(_)), None) => a.next(),
+        (_, Some(Err(_))) | (None, _) => b.next(),
+        (Some(Ok(x)), Some(Ok(y))) => {
+            if x.time.total_cmp(&y.time).is_le() {
+                a.next()
+            } else {
+                b.next()
+            }
+        }
+    })
+}
+
+/// The interval being merged and where its motion has got to.
+struct Current<C> {
+    interval: Interval<C>,
+    /// The time up to which its motion has been written.
+    from: f64,
+    /// Whether the points at or before its start have all been written.
+    inside: bool,
+}
+
+/// A motion stream merged with time-ordered point events (measurements, GPS fixes), one
+/// event at a time.
+///
+/// A point at or before an interval's start comes before that interval; a point strictly
+/// inside an interval splits it: `motion(start..t)`, the point, then `motion(t..end)` with the
+/// same controls. Points after the last interval come last. `make(interval, dt)` builds the
+/// motion event of a piece of duration `dt`; each motion event is stamped with the time its
+/// piece ends.
+pub(crate) struct MergeByTime<C, I, P: Iterator, M> {
+    intervals: I,
+    points: std::iter::Peekable<P>,
+    make: M,
+    current: Option<Current<C>>,
+}
+
+/// See [`MergeByTime`].
+pub(crate) fn merge_by_time<C, I, P, M>(intervals: I, points: P, make: M) -> MergeByTime<C, I, P, M>
+where
+    I: Iterator<Item = Result<Interval<C>>>,
+    P: Iterator<Item = Result<Point>>,
+    M: FnMut(&Interval<C>, f64) -> Result<Event>,
+{
+    MergeByTime {
+        intervals,
+        points: points.peekable(),
+        make,
+        current: None,
     }
-    Ok(())
+}
+
+impl<C, I, P, M> Iterator for MergeByTime<C, I, P, M>
+where
+    I: Iterator<Item = Result<Interval<C>>>,
+    P: Iterator<Item = Result<Point>>,
+    M: FnMut(&Interval<C>, f64) -> Result<Event>,
+{
+    type Item = Result<TimedEvent>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let point = |p: Option<Result<Point>>| {
+            p.map(|p| {
+                p.map(|p| TimedEvent {
+                    time: p.time,
+                    event: p.event,
+                })
+            })
+        };
+        loop {
+            let Some(current) = self.current.as_mut() else {
+                match self.intervals.next() {
+                    Some(Ok(interval)) => {
+                        self.current = Some(Current {
+                            from: interval.start,
+                            interval,
+                            inside: false,
+                        });
+                        continue;
+                    }
+                    Some(Err(e)) => return Some(Err(e)),
+                    None => return point(self.points.next()),
+                }
+            };
+            if !current.inside {
+                match self.points.peek() {
+                    Some(Err(_)) => return point(self.points.next()),
+                    Some(Ok(p)) if p.time <= current.interval.start => {
+                        return point(self.points.next());
+                    }
+                    _ => current.inside = true,
+                }
+            }
+            return match self.points.peek() {
+                Some(Err(_)) => point(self.points.next()),
+                Some(Ok(p)) if p.time < current.interval.end => {
+                    let time = p.time;
+                    if time > current.from {
+                        let dt = time - current.from;
+                        current.from = time;
+                        Some(
+                            (self.make)(&current.interval, dt)
+                                .map(|event| TimedEvent { time, event }),
+                        )
+                    } else {
+                        point(self.points.next())
+                    }
+                }
+                _ => {
+                    let Current { interval, from, .. } = self.current.take()?;
+                    let time = interval.end;
+                    Some(
+                        (self.make)(&interval, time - from).map(|event| TimedEvent { time, event }),
+                    )
+                }
+            };
+        }
+    }
 }
 
 /// A fresh, empty folder under the system temp dir for one test, removed when dropped.
@@ -323,18 +547,20 @@ pub(crate) fn test_dir(name: &str) -> tempfile::TempDir {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::events::Clock;
     use slam_core::nalgebra::Vector2;
 
-    fn gps(x: f64) -> Event {
-        Event::Gps(Vector2::new(x, 0.0))
+    fn gps(line: usize, time: f64, x: f64) -> Result<Point> {
+        Ok(Point {
+            line,
+            time,
+            event: Event::Gps(Vector2::new(x, 0.0)),
+        })
     }
 
     /// (time, "M"/"G", duration-or-x) of every event.
-    fn trace(dataset: &Dataset, durations: &[f64]) -> Vec<(f64, char, f64)> {
+    fn trace(events: &[TimedEvent], durations: &[f64]) -> Vec<(f64, char, f64)> {
         let mut k = 0;
-        dataset
-            .events
+        events
             .iter()
             .map(|e| match &e.event {
                 Event::Motion(_) => {
@@ -347,27 +573,29 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn points_split_motion_intervals() {
-        let rows = [(2, 0.0, ()), (3, 1.0, ()), (4, 2.0, ())];
-        let intervals = intervals(Path::new("odo"), &rows).unwrap();
-        assert_eq!(intervals.len(), 2);
-        let points = vec![
-            (2.5, gps(4.0)),
-            (0.5, gps(1.0)),
-            (-1.0, gps(0.0)),
-            (1.0, gps(2.0)),
-            (0.5, gps(1.5)),
-        ];
-        let mut dataset = Dataset::new("t", Clock::Seconds);
+    fn merged(
+        rows: &[(usize, f64, ())],
+        points: Vec<Result<Point>>,
+    ) -> Result<Vec<(f64, char, f64)>> {
+        let intervals = Intervals::new(Path::new("odo"), rows.iter().copied().map(Ok));
         let mut durations = Vec::new();
-        merge_by_time(&mut dataset, &intervals, points, |_, dt| {
+        let events = merge_by_time(intervals, points.into_iter(), |_, dt| {
             durations.push(dt);
             Ok(Event::Motion(Box::new(
                 crate::odometry::Unicycle::new(0.0, 0.0, dt, 0.0, 0.0, Default::default()).unwrap(),
             )))
         })
-        .unwrap();
+        .collect::<Result<Vec<_>>>()?;
+        Ok(trace(&events, &durations))
+    }
+
+    #[test]
+    fn points_split_motion_intervals() {
+        let rows = [(2, 0.0, ()), (3, 1.0, ()), (4, 2.0, ())];
+        // Two sources, each in time order; on equal times the first one's points come first.
+        let first = vec![gps(1, -1.0, 0.0), gps(2, 0.5, 1.0), gps(3, 2.5, 4.0)];
+        let second = vec![gps(1, 0.5, 1.5), gps(2, 1.0, 2.0)];
+        let points = merge_points(first.into_iter(), second.into_iter());
         let expected = vec![
             (-1.0, 'G', 0.0),
             (0.5, 'M', 0.5),
@@ -378,16 +606,26 @@ mod tests {
             (2.0, 'M', 1.0),
             (2.5, 'G', 4.0),
         ];
-        assert_eq!(trace(&dataset, &durations), expected);
+        assert_eq!(merged(&rows, points.collect()).unwrap(), expected);
+        // No odometry: the points alone; no points: the intervals alone.
+        assert_eq!(
+            merged(&[], vec![gps(1, 3.0, 1.0)]).unwrap(),
+            [(3.0, 'G', 1.0)]
+        );
+        assert_eq!(merged(&rows[..2], vec![]).unwrap(), [(1.0, 'M', 1.0)]);
     }
 
     #[test]
     fn times_going_backwards_are_errors() {
         let rows = [(5, 1.0, ()), (6, 0.5, ())];
-        let e = intervals(Path::new("odo.dat"), &rows)
+        let e = merged(&rows, vec![]).unwrap_err().to_string();
+        assert!(e.starts_with("odo:6: time goes backwards"), "{e}");
+        let points = vec![gps(7, 1.0, 0.0), gps(8, 0.5, 0.0)];
+        let e = in_time_order(Path::new("gps.csv"), points.into_iter())
+            .collect::<Result<Vec<_>>>()
             .unwrap_err()
             .to_string();
-        assert!(e.starts_with("odo.dat:6: time goes backwards"), "{e}");
+        assert_eq!(e, "gps.csv:8: time goes backwards: 0.5 after 1");
     }
 
     #[test]
@@ -429,5 +667,37 @@ mod tests {
         assert_eq!(read_text(&path).unwrap(), "hello\nworld\n");
         std::fs::write(dir.path().join("b"), b"plain").unwrap();
         assert_eq!(read_text(&dir.path().join("b")).unwrap(), "plain");
+        let lines = |path: &Path| -> Vec<(usize, String)> {
+            Lines::open(path).unwrap().collect::<Result<_>>().unwrap()
+        };
+        assert_eq!(lines(&path), [(1, "hello".into()), (2, "world".into())]);
+        assert_eq!(lines(&dir.path().join("b")), [(1, "plain".into())]);
+        assert!(Lines::open(&dir.path().join("absent")).is_err());
+    }
+
+    #[test]
+    fn lines_end_as_str_lines_does() {
+        let dir = test_dir("lines");
+        let texts: [&[u8]; 8] = [
+            b"",
+            b"\n",
+            b"a\r\nb\n\nc",
+            b"a\r",
+            b"a\r\r\n\r",
+            b"x\xe2\x82\ny\xff\r\nz",
+            b"\xef\xbb\xbfh,1\n",
+            b"\x1f",
+        ];
+        for (k, text) in texts.iter().enumerate() {
+            let path = dir.path().join(format!("t{k}"));
+            std::fs::write(&path, text).unwrap();
+            let streamed: Vec<(usize, String)> =
+                Lines::open(&path).unwrap().collect::<Result<_>>().unwrap();
+            let whole = read_text(&path).unwrap();
+            let expected: Vec<(usize, String)> = numbered_lines(&whole)
+                .map(|(n, l)| (n, l.to_string()))
+                .collect();
+            assert_eq!(streamed, expected, "{text:?}");
+        }
     }
 }

@@ -22,17 +22,14 @@
 //! There is no robot ground truth here (the Vicon files are not in the store).
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use slam_core::nalgebra::Vector2;
 use slam_core::{Observation, Pose3};
 
-use super::{
-    Fields, at, check_sigmas, count_skipped, intervals, merge_by_time, missing, numbered_lines,
-    read_text,
-};
+use super::{Fields, Intervals, Lines, Point, at, check_sigmas, merge_by_time, missing};
 use crate::error::{Result, SensorError};
-use crate::events::{Clock, Dataset, Event, KnownLandmark};
+use crate::events::{Clock, Dataset, DatasetInfo, Event, EventStream, KnownLandmark, SkipCounter};
 use crate::models::RangeBearing;
 use crate::odometry::{Integration, Unicycle};
 
@@ -81,37 +78,62 @@ struct Measurement {
     bearing: f64,
 }
 
-/// Reads robot `robot` (1 to 5) of MR.CLAM dataset 1 from the folder `dir`.
+/// Reads robot `robot` (1 to 5) of MR.CLAM dataset 1 from the folder `dir`. This is
+/// [`stream_mrclam`] collected.
 ///
 /// A robot outside 1..=5 is an [`SensorError::InvalidArgument`]; a missing file an I/O error
 /// naming it; a malformed line (wrong field count, non-numeric or non-finite value,
 /// non-positive range, times going backwards) an error naming `file:line`.
 pub fn read_mrclam(dir: &Path, robot: u8, options: &MrclamOptions) -> Result<Dataset> {
+    stream_mrclam(dir, robot, options)?.into_dataset()
+}
+
+/// Reads robot `robot` of MR.CLAM dataset 1 one line at a time: the events of
+/// [`read_mrclam`], in the same order, from the odometry and measurement files merged by
+/// time.
+///
+/// Bad arguments, a missing file and any error in the small `Barcodes.dat` and
+/// `Landmark_Groundtruth.dat` (read whole, for [`DatasetInfo::landmarks`]) are errors of this
+/// call; a malformed line of the robot's files is an `Err` item when the stream reaches it.
+pub fn stream_mrclam(dir: &Path, robot: u8, options: &MrclamOptions) -> Result<EventStream> {
     check_options(robot, options)?;
     let barcodes = read_barcodes(&existing(dir, "Barcodes.dat")?)?;
     let landmarks = read_landmarks(&existing(dir, "Landmark_Groundtruth.dat")?)?;
     let odometry_file = existing(dir, &format!("Robot{robot}_Odometry.dat"))?;
-    let odometry = read_odometry(&odometry_file, options)?;
+    let odometry = Table::open(&odometry_file, 3, "time v omega")?;
     let measurement_file = existing(dir, &format!("Robot{robot}_Measurement.dat"))?;
-    let measurements = read_measurements(&measurement_file)?;
+    let measurements = Table::open(&measurement_file, 4, "time barcode range bearing")?;
 
-    let mut dataset = Dataset::new(format!("MR.CLAM robot {robot}"), Clock::Seconds);
-    dataset.landmarks = landmarks;
-    let points = group_observations(
-        &mut dataset,
-        &measurement_file,
-        &measurements,
-        &barcodes,
-        options,
-    )?;
-    let intervals = intervals(&odometry_file, &odometry)?;
-    merge_by_time(&mut dataset, &intervals, points, |interval, dt| {
+    let rows = {
+        let options = options.clone();
+        odometry.rows(move |f| {
+            let [time, v, omega] = f.f64s(0, "odometry")?;
+            unicycle(v, omega, 0.0, &options).map_err(|e| f.wrap(e))?;
+            Ok((f.line(), time, (v, omega)))
+        })
+    };
+    let intervals = Intervals::new(&odometry_file, rows);
+    let skipped = SkipCounter::default();
+    let groups = Groups {
+        measurements: measurement_rows(measurements).peekable(),
+        file: measurement_file,
+        barcodes,
+        options: options.clone(),
+        skipped: skipped.clone(),
+    };
+    let options = options.clone();
+    let events = merge_by_time(intervals, groups, move |interval, dt| {
         let (v, omega) = interval.control;
-        unicycle(v, omega, dt, options)
+        unicycle(v, omega, dt, &options)
             .map(|u| Event::Motion(Box::new(u)))
             .map_err(|e| at(&odometry_file, interval.line, e))
-    })?;
-    Ok(dataset)
+    });
+    let info = DatasetInfo {
+        name: format!("MR.CLAM robot {robot}"),
+        clock: Clock::Seconds,
+        landmarks,
+    };
+    Ok(EventStream::new(info, events).with_skipped(skipped))
 }
 
 fn check_options(robot: u8, options: &MrclamOptions) -> Result<()> {
@@ -164,22 +186,62 @@ fn unicycle(v: f64, omega: f64, dt: f64, options: &MrclamOptions) -> Result<Unic
     )
 }
 
-/// Hands each data line (not a `#` header, not blank) with exactly `columns` fields to `row`.
+/// The data lines of a file (not `#` headers, not blank), each checked to have `columns`
+/// fields.
+struct Table {
+    lines: Lines,
+    columns: usize,
+    what: &'static str,
+}
+
+impl Table {
+    fn open(path: &Path, columns: usize, what: &'static str) -> Result<Table> {
+        Ok(Table {
+            lines: Lines::open(path)?,
+            columns,
+            what,
+        })
+    }
+
+    /// The next data line, handed to `row`.
+    fn next_row<T>(&mut self, row: impl FnOnce(&Fields) -> Result<T>) -> Option<Result<T>> {
+        loop {
+            let (line, content) = match self.lines.next()? {
+                Ok(next) => next,
+                Err(e) => return Some(Err(e)),
+            };
+            let trimmed = content.trim();
+            if trimmed.is_empty() || trimmed.starts_with('#') {
+                continue;
+            }
+            let fields = Fields::whitespace(self.lines.path(), line, &content);
+            return Some(
+                fields
+                    .expect_len(self.columns, self.what)
+                    .and_then(|()| row(&fields)),
+            );
+        }
+    }
+
+    /// Every data line through `row`.
+    fn rows<T>(
+        mut self,
+        mut row: impl FnMut(&Fields) -> Result<T>,
+    ) -> impl Iterator<Item = Result<T>> {
+        std::iter::from_fn(move || self.next_row(&mut row))
+    }
+}
+
+/// Hands each data line of a whole (small) file to `row`.
 fn read_table(
     path: &Path,
     columns: usize,
-    what: &str,
+    what: &'static str,
     mut row: impl FnMut(&Fields) -> Result<()>,
 ) -> Result<()> {
-    let text = read_text(path)?;
-    for (line, content) in numbered_lines(&text) {
-        let trimmed = content.trim();
-        if trimmed.is_empty() || trimmed.starts_with('#') {
-            continue;
-        }
-        let fields = Fields::whitespace(path, line, content);
-        fields.expect_len(columns, what)?;
-        row(&fields)?;
+    let mut table = Table::open(path, columns, what)?;
+    while let Some(result) = table.next_row(&mut row) {
+        result?;
     }
     Ok(())
 }
@@ -212,69 +274,84 @@ fn read_landmarks(path: &Path) -> Result<Vec<KnownLandmark>> {
     Ok(landmarks)
 }
 
-/// `(line, time, (v, omega))` per row; each row's commands are checked.
-fn read_odometry(path: &Path, options: &MrclamOptions) -> Result<Vec<super::ControlRow>> {
-    let mut rows = Vec::new();
-    read_table(path, 3, "time v omega", |f| {
-        let [time, v, omega] = f.f64s(0, "odometry")?;
-        unicycle(v, omega, 0.0, options).map_err(|e| f.wrap(e))?;
-        rows.push((f.line(), time, (v, omega)));
-        Ok(())
-    })?;
-    Ok(rows)
-}
-
-fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
-    let mut rows: Vec<Measurement> = Vec::new();
-    read_table(path, 4, "time barcode range bearing", |f| {
+/// The measurement rows, checked to be in time order.
+fn measurement_rows(table: Table) -> impl Iterator<Item = Result<Measurement>> {
+    let mut previous: Option<f64> = None;
+    table.rows(move |f| {
         let time = f.f64(0, "time")?;
         let barcode = f.u64(1, "barcode")?;
         let [range, bearing] = f.f64s(2, "range and bearing")?;
-        if let Some(previous) = rows.last().filter(|p| time < p.time) {
-            return Err(f.error(format!(
-                "time goes backwards: {time} after {}",
-                previous.time
-            )));
+        if let Some(previous) = previous.filter(|p| time < *p) {
+            return Err(f.error(format!("time goes backwards: {time} after {previous}")));
         }
-        rows.push(Measurement {
+        previous = Some(time);
+        Ok(Measurement {
             line: f.line(),
             time,
             barcode,
             range,
             bearing,
-        });
-        Ok(())
-    })?;
-    Ok(rows)
+        })
+    })
 }
 
 /// One observation event per timestamp with at least one landmark measurement; other
-/// measurements are counted in `dataset.skipped`.
-fn group_observations(
-    dataset: &mut Dataset,
-    file: &Path,
-    measurements: &[Measurement],
-    barcodes: &HashMap<u64, u64>,
-    options: &MrclamOptions,
-) -> Result<Vec<(f64, Event)>> {
-    let mut points: Vec<(f64, Event)> = Vec::new();
-    for group in measurements.chunk_by(|a, b| a.time == b.time) {
+/// measurements are counted in `skipped`.
+struct Groups<M: Iterator> {
+    measurements: std::iter::Peekable<M>,
+    file: PathBuf,
+    barcodes: HashMap<u64, u64>,
+    options: MrclamOptions,
+    skipped: SkipCounter,
+}
+
+impl<M: Iterator<Item = Result<Measurement>>> Groups<M> {
+    /// The observations of the measurements at `time` (the first of them is `first`).
+    fn group(&mut self, first: Measurement) -> Result<Vec<Observation>> {
+        let time = first.time;
         let mut observations = Vec::new();
-        for m in group {
-            match barcodes.get(&m.barcode) {
+        let mut next = Some(first);
+        while let Some(m) = next.take() {
+            match self.barcodes.get(&m.barcode) {
                 Some(&subject) if LANDMARKS.contains(&subject) => {
-                    observations.push(observation(file, m, subject, options)?);
+                    observations.push(observation(&self.file, &m, subject, &self.options)?);
                 }
-                Some(subject) if ROBOTS.contains(subject) => count_skipped(dataset, "robot"),
-                Some(_) => count_skipped(dataset, "other subject"),
-                None => count_skipped(dataset, "unknown barcode"),
+                Some(subject) if ROBOTS.contains(subject) => self.skipped.count("robot"),
+                Some(_) => self.skipped.count("other subject"),
+                None => self.skipped.count("unknown barcode"),
+            }
+            let same_time = |m: &Result<Measurement>| m.as_ref().is_ok_and(|m| m.time == time);
+            if let Some(m) = self.measurements.next_if(same_time) {
+                next = Some(m?);
             }
         }
-        if !observations.is_empty() {
-            points.push((group[0].time, Event::Observations(observations)));
+        Ok(observations)
+    }
+}
+
+impl<M: Iterator<Item = Result<Measurement>>> Iterator for Groups<M> {
+    type Item = Result<Point>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            let first = match self.measurements.next()? {
+                Ok(m) => m,
+                Err(e) => return Some(Err(e)),
+            };
+            let (line, time) = (first.line, first.time);
+            match self.group(first) {
+                Ok(observations) if observations.is_empty() => {}
+                Ok(observations) => {
+                    return Some(Ok(Point {
+                        line,
+                        time,
+                        event: Event::Observations(observations),
+                    }));
+                }
+                Err(e) => return Some(Err(e)),
+            }
         }
     }
-    Ok(points)
 }
 
 fn observation(

@@ -21,15 +21,19 @@
 //! [`rb2d_text`] and [`write_rb2d`] write a [`Dataset`] as an rb2d log that this reader turns
 //! back into the same odometry increments, observations and true poses.
 
+use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::path::Path;
 
 use slam_core::nalgebra::{Matrix3, Vector2, Vector3};
 use slam_core::{Observation, Pose2, Pose3};
 
-use super::{Fields, count_skipped, numbered_lines, read_text, write_atomically};
+use super::{Fields, Lines, write_atomically};
 use crate::error::{Result, SensorError};
-use crate::events::{Clock, Dataset, Event, KnownLandmark, TruthKind};
+use crate::events::{
+    Clock, Dataset, DatasetInfo, Event, EventStream, KnownLandmark, Pump, SkipCounter, Step,
+    TimedEvent, TruthKind,
+};
 use crate::models::RangeBearing;
 use crate::odometry::{Integration, PoseIncrement, Unicycle};
 
@@ -95,7 +99,8 @@ struct State {
     pending: Option<(u64, Vec<Observation>)>,
 }
 
-/// Reads an rb2d log; see the [module](self) for the records and what is rejected.
+/// Reads an rb2d log; see the [module](self) for the records and what is rejected. This is
+/// [`stream_rb2d`] collected.
 ///
 /// ```
 /// use slam_sensors::data::read_rb2d;
@@ -118,36 +123,81 @@ struct State {
 /// assert!(matches!(last.event, Event::GroundTruth { kind: TruthKind::True, .. }));
 /// ```
 pub fn read_rb2d(path: &Path) -> Result<Dataset> {
-    let text = read_text(path)?;
+    stream_rb2d(path)?.into_dataset()
+}
+
+/// Reads an rb2d log one line at a time: the events of [`read_rb2d`], in the same order.
+///
+/// The `LM` lines, which may stand anywhere in the file, are collected by a first quick pass
+/// for [`DatasetInfo::landmarks`]. A missing or unreadable file is an error of this call; a
+/// malformed line (an `LM` line too) is an `Err` item when the stream reaches it.
+pub fn stream_rb2d(path: &Path) -> Result<EventStream> {
+    let mut landmarks = Vec::new();
+    for next in Lines::open(path)? {
+        let (line, content) = next?;
+        let fields = Fields::whitespace(path, line, &content);
+        if fields.first() == "LM"
+            && let Ok(landmark) = parse_landmark(&fields)
+        {
+            landmarks.push(landmark);
+        }
+    }
     let name = path
         .file_name()
         .unwrap_or(path.as_os_str())
-        .to_string_lossy();
-    let mut dataset = Dataset::new(name, Clock::Seconds);
-    let mut state = State::default();
-    for (line, content) in numbered_lines(&text) {
-        let trimmed = content.trim();
-        if trimmed.starts_with('#') {
-            count_skipped(&mut dataset, "#");
-        } else if !trimmed.is_empty() {
-            read_record(
-                &Fields::whitespace(path, line, content),
-                &mut state,
-                &mut dataset,
-            )?;
-        }
-    }
-    flush(&mut state, &mut dataset);
-    Ok(dataset)
+        .to_string_lossy()
+        .into_owned();
+    let info = DatasetInfo {
+        name,
+        clock: Clock::Seconds,
+        landmarks,
+    };
+    let skipped = SkipCounter::default();
+    let reader = Rb2dReader {
+        lines: Lines::open(path)?,
+        skipped: skipped.clone(),
+        state: State::default(),
+    };
+    Ok(EventStream::new(info, Pump::new(reader)).with_skipped(skipped))
 }
 
-fn read_record(fields: &Fields, state: &mut State, dataset: &mut Dataset) -> Result<()> {
+/// The state of a [`stream_rb2d`] stream.
+struct Rb2dReader {
+    lines: Lines,
+    skipped: SkipCounter,
+    state: State,
+}
+
+impl Step for Rb2dReader {
+    fn step(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<bool> {
+        let Some(next) = self.lines.next() else {
+            flush(&mut self.state, out);
+            return Ok(false);
+        };
+        let (line, content) = next?;
+        let trimmed = content.trim();
+        if trimmed.starts_with('#') {
+            self.skipped.count("#");
+        } else if !trimmed.is_empty() {
+            let fields = Fields::whitespace(self.lines.path(), line, &content);
+            read_record(&fields, &mut self.state, out)?;
+        }
+        Ok(true)
+    }
+}
+
+fn push(out: &mut VecDeque<TimedEvent>, time: f64, event: Event) {
+    out.push_back(TimedEvent { time, event });
+}
+
+fn read_record(fields: &Fields, state: &mut State, out: &mut VecDeque<TimedEvent>) -> Result<()> {
     match fields.first() {
         "PARAM" => state.params.set(fields),
-        "LM" => read_landmark(fields, dataset),
-        "ODOM" => read_odometry(fields, state, dataset),
-        "OBS" => read_observation(fields, state, dataset),
-        "GT" => read_truth(fields, state, dataset),
+        // Collected before the stream starts; checked again here to report errors in order.
+        "LM" => parse_landmark(fields).map(|_| ()),
+        "ODOM" => read_odometry(fields, state, out),
+        "OBS" => read_observation(fields, state, out),
+        "GT" => read_truth(fields, state, out),
         other => Err(fields.error(format!(
             "unknown record `{other}` (expected PARAM, LM, ODOM, OBS or GT)"
         ))),
@@ -155,16 +205,21 @@ fn read_record(fields: &Fields, state: &mut State, dataset: &mut Dataset) -> Res
 }
 
 /// Emits the pending observations, if any.
-fn flush(state: &mut State, dataset: &mut Dataset) {
+fn flush(state: &mut State, out: &mut VecDeque<TimedEvent>) {
     if let Some((step, observations)) = state.pending.take() {
         let dt = state.params.values[0].map_or(0.0, |(v, _)| v);
-        dataset.push(step as f64 * dt, Event::Observations(observations));
+        push(out, step as f64 * dt, Event::Observations(observations));
     }
 }
 
 /// The step of a record of `rank` (ODOM 0, OBS 1, GT 2), checked against the previous one;
 /// a step record other than another `OBS` of the same step flushes the pending observations.
-fn step(fields: &Fields, rank: u8, state: &mut State, dataset: &mut Dataset) -> Result<u64> {
+fn step(
+    fields: &Fields,
+    rank: u8,
+    state: &mut State,
+    out: &mut VecDeque<TimedEvent>,
+) -> Result<u64> {
     let k = fields.u64(1, "step")?;
     if let Some((last_k, last_rank)) = state.last {
         let same_obs_step = rank == 1 && last_rank == 1 && k == last_k;
@@ -188,24 +243,23 @@ fn step(fields: &Fields, rank: u8, state: &mut State, dataset: &mut Dataset) -> 
         .as_ref()
         .is_some_and(|(pk, _)| !(rank == 1 && *pk == k))
     {
-        flush(state, dataset);
+        flush(state, out);
     }
     state.last = Some((k, rank));
     Ok(k)
 }
 
-fn read_landmark(fields: &Fields, dataset: &mut Dataset) -> Result<()> {
+fn parse_landmark(fields: &Fields) -> Result<KnownLandmark> {
     fields.expect_len(4, "LM id x y")?;
     let id = fields.u64(1, "landmark id")?;
     let [x, y] = fields.f64s(2, "landmark position")?;
-    dataset.landmarks.push(KnownLandmark {
+    Ok(KnownLandmark {
         id,
         position: Vector2::new(x, y),
-    });
-    Ok(())
+    })
 }
 
-fn read_odometry(fields: &Fields, state: &mut State, dataset: &mut Dataset) -> Result<()> {
+fn read_odometry(fields: &Fields, state: &mut State, out: &mut VecDeque<TimedEvent>) -> Result<()> {
     fields.expect_len(6, "ODOM k dt dx dy dth")?;
     let [dt, dx, dy, dth] = fields.f64s(2, "odometry")?;
     let time_step = state.params.get("dt", fields)?;
@@ -214,12 +268,12 @@ fn read_odometry(fields: &Fields, state: &mut State, dataset: &mut Dataset) -> R
     if dt <= 0.0 {
         return Err(fields.error(format!("ODOM dt must be positive, got {dt}")));
     }
-    let k = step(fields, 0, state, dataset)?;
+    let k = step(fields, 0, state, out)?;
     if k == 0 {
         return Err(fields.error("ODOM step must be at least 1 (it leads from pose k-1 to pose k)"));
     }
     let motion = motion(dt, dx, dy, dth, sigma_v, sigma_w).map_err(|e| fields.wrap(e))?;
-    dataset.push(k as f64 * time_step, Event::Motion(motion));
+    push(out, k as f64 * time_step, Event::Motion(motion));
     Ok(())
 }
 
@@ -240,7 +294,11 @@ fn motion(
     Ok(Box::new(PoseIncrement::new(Pose2::new(dx, dy, dth), cov)?))
 }
 
-fn read_observation(fields: &Fields, state: &mut State, dataset: &mut Dataset) -> Result<()> {
+fn read_observation(
+    fields: &Fields,
+    state: &mut State,
+    out: &mut VecDeque<TimedEvent>,
+) -> Result<()> {
     fields.expect_len(5, "OBS k id range bearing")?;
     let id = fields.i64(2, "landmark id")?;
     let [range, bearing] = fields.f64s(3, "range and bearing")?;
@@ -253,7 +311,7 @@ fn read_observation(fields: &Fields, state: &mut State, dataset: &mut Dataset) -
             fields.error(format!("landmark id must be -1 or non-negative, got {id}"))
         })?),
     };
-    let k = step(fields, 1, state, dataset)?;
+    let k = step(fields, 1, state, out)?;
     let model =
         RangeBearing::new(range, bearing, sigma_r, sigma_b).map_err(|e| fields.wrap(e.into()))?;
     let observation = Observation {
@@ -269,13 +327,14 @@ fn read_observation(fields: &Fields, state: &mut State, dataset: &mut Dataset) -
     Ok(())
 }
 
-fn read_truth(fields: &Fields, state: &mut State, dataset: &mut Dataset) -> Result<()> {
+fn read_truth(fields: &Fields, state: &mut State, out: &mut VecDeque<TimedEvent>) -> Result<()> {
     fields.expect_len(5, "GT k x y th")?;
     let [x, y, theta] = fields.f64s(2, "pose")?;
     let time_step = state.params.get("dt", fields)?;
-    let k = step(fields, 2, state, dataset)?;
+    let k = step(fields, 2, state, out)?;
     let pose = Pose2::new(x, y, theta);
-    dataset.push(
+    push(
+        out,
         k as f64 * time_step,
         Event::GroundTruth {
             pose,

@@ -14,6 +14,8 @@
 //! row has no duration and gives no motion. Laser frames and GPS fixes that fall strictly
 //! inside an interval split it (see [`crate::data`]). Every laser frame gives one
 //! [`Event::Observations`], also when it holds no detection (19 frames of the real data).
+//! The files are read side by side and merged by time, so each must be in order: odometry,
+//! laser frame and GPS times non-decreasing, detections grouped by frame in frame order.
 //!
 //! Bearings in `tree_detections.csv` are in the laser's own convention, 0 to pi with pi/2
 //! straight ahead; the reader subtracts pi/2 to get the sensor-frame bearing (0 ahead,
@@ -26,10 +28,11 @@ use slam_core::Observation;
 use slam_core::nalgebra::Vector2;
 
 use super::{
-    Fields, at, check_sigmas, intervals, merge_by_time, missing, numbered_lines, read_text,
+    Fields, Intervals, Lines, Point, at, check_sigmas, in_time_order, merge_by_time, merge_points,
+    missing,
 };
 use crate::error::{Result, SensorError};
-use crate::events::{Clock, Dataset, Event};
+use crate::events::{Clock, Dataset, DatasetInfo, Event, EventStream};
 use crate::models::PoleObservation;
 use crate::odometry::{Ackermann, AckermannParams};
 
@@ -76,37 +79,76 @@ const TIME_TOLERANCE: f64 = 1e-9;
 
 /// Reads Victoria Park from the dataset root (holding `converted/`) or from the `converted/`
 /// folder itself. Times are seconds ([`Clock::Seconds`]); see the [module](self) for the
-/// events.
+/// events. This is [`stream_victoria_park`] collected.
 ///
 /// Malformed lines (wrong header, field count, non-numeric or non-finite values, a steering
 /// angle the [`Ackermann`] model rejects, a detection whose frame or time disagrees with
 /// `laser_frame_times.csv`, a non-positive range or diameter, odometry times going
 /// backwards) are errors naming `file:line`.
 pub fn read_victoria_park(dir: &Path, options: &VictoriaParkOptions) -> Result<Dataset> {
+    stream_victoria_park(dir, options)?.into_dataset()
+}
+
+/// Reads Victoria Park one line at a time: the events of [`read_victoria_park`], in the same
+/// order, from one reader per file merged by time.
+///
+/// Bad options, a missing data folder or file and a wrong header are errors of this call; a
+/// malformed line is an `Err` item when the stream reaches it. The merge needs each file in
+/// time order: laser frame times and GPS times going backwards, and detections out of frame
+/// order, are errors naming `file:line`.
+pub fn stream_victoria_park(dir: &Path, options: &VictoriaParkOptions) -> Result<EventStream> {
     check_options(options)?;
     let dir = data_folder(dir)?;
-    let odometry = read_odometry(&dir.join(ODOMETRY.0), options)?;
-    let frame_times = read_frame_times(&dir.join(FRAMES.0))?;
-    let detections = read_detections(&dir.join(DETECTIONS.0), &frame_times, options)?;
-    let gps = read_gps(&dir.join(GPS.0))?;
-
-    let mut points: Vec<(f64, Event)> = frame_times
-        .into_iter()
-        .zip(detections)
-        .map(|(t, obs)| (t, Event::Observations(obs)))
-        .collect();
-    points.extend(gps.into_iter().map(|(t, p)| (t, Event::Gps(p))));
-
     let odometry_file = dir.join(ODOMETRY.0);
-    let intervals = intervals(&odometry_file, &odometry)?;
-    let mut dataset = Dataset::new("Victoria Park", Clock::Seconds);
-    merge_by_time(&mut dataset, &intervals, points, |interval, dt| {
+    let odometry = Csv::open(&odometry_file, ODOMETRY.1)?;
+    let frames_file = dir.join(FRAMES.0);
+    let frames = Csv::open(&frames_file, FRAMES.1)?;
+    let detections_file = dir.join(DETECTIONS.0);
+    let detections = Csv::open(&detections_file, DETECTIONS.1)?;
+    let gps_file = dir.join(GPS.0);
+    let gps = Csv::open(&gps_file, GPS.1)?;
+
+    let rows = {
+        let options = options.clone();
+        odometry.rows(move |f| {
+            let [time_ms, speed, steering] = f.f64s(0, "odometry")?;
+            ackermann(speed, steering, 0.0, &options).map_err(|e| f.wrap(e))?;
+            Ok((f.line(), time_ms / 1000.0, (speed, steering)))
+        })
+    };
+    let intervals = Intervals::new(&odometry_file, rows);
+    let observations = FrameObservations {
+        frames,
+        detections: Detections(detections).peekable(),
+        detections_file,
+        options: options.clone(),
+        count: 0,
+    };
+    let fixes = gps.rows(|f| {
+        let [time_ms, lo, la] = f.f64s(0, "GPS")?;
+        Ok(Point {
+            line: f.line(),
+            time: time_ms / 1000.0,
+            event: Event::Gps(Vector2::new(lo, la)),
+        })
+    });
+    let points = merge_points(
+        in_time_order(&frames_file, observations),
+        in_time_order(&gps_file, fixes),
+    );
+    let options = options.clone();
+    let events = merge_by_time(intervals, points, move |interval, dt| {
         let (speed, steering) = interval.control;
-        ackermann(speed, steering, dt, options)
+        ackermann(speed, steering, dt, &options)
             .map(|a| Event::Motion(Box::new(a)))
             .map_err(|e| at(&odometry_file, interval.line, e))
-    })?;
-    Ok(dataset)
+    });
+    let info = DatasetInfo {
+        name: "Victoria Park".into(),
+        clock: Clock::Seconds,
+        landmarks: Vec::new(),
+    };
+    Ok(EventStream::new(info, events))
 }
 
 fn check_options(options: &VictoriaParkOptions) -> Result<()> {
@@ -160,105 +202,191 @@ fn ackermann(
     )
 }
 
-/// Reads a CSV file whose first line must be `header`, and hands each data line (with the
-/// expected number of fields) to `row`. Blank lines are ignored.
-fn read_csv(path: &Path, header: &str, mut row: impl FnMut(&Fields) -> Result<()>) -> Result<()> {
-    let text = read_text(path)?;
-    let columns = header.split(',').count();
-    let mut lines = numbered_lines(&text);
-    let first = lines.next().map_or("", |(_, l)| l);
-    let first = first.trim_start_matches('\u{feff}').trim();
-    if first != header {
-        return Err(SensorError::parse(
-            path,
-            1,
-            format!("expected the header `{header}`, got `{first}`"),
-        ));
-    }
-    for (line, content) in lines.filter(|(_, l)| !l.trim().is_empty()) {
-        let fields = Fields::csv(path, line, content);
-        fields.expect_len(columns, header)?;
-        row(&fields)?;
-    }
-    Ok(())
+/// The data lines of a CSV file whose first line must be `header` (a leading BOM and
+/// surrounding blanks aside); blank lines are skipped, and each line must have the header's
+/// number of fields.
+struct Csv {
+    lines: Lines,
+    header: &'static str,
+    columns: usize,
 }
 
-/// `(line, time s, (speed, steering))` per row; each row's controls are checked.
-fn read_odometry(path: &Path, options: &VictoriaParkOptions) -> Result<Vec<super::ControlRow>> {
-    let mut rows = Vec::new();
-    read_csv(path, ODOMETRY.1, |f| {
-        let [time_ms, speed, steering] = f.f64s(0, "odometry")?;
-        ackermann(speed, steering, 0.0, options).map_err(|e| f.wrap(e))?;
-        rows.push((f.line(), time_ms / 1000.0, (speed, steering)));
-        Ok(())
-    })?;
-    Ok(rows)
-}
-
-/// The time of each frame, indexed by frame number (which must count 0, 1, 2, ...).
-fn read_frame_times(path: &Path) -> Result<Vec<f64>> {
-    let mut times = Vec::new();
-    read_csv(path, FRAMES.1, |f| {
-        let frame = f.usize(0, "frame")?;
-        if frame != times.len() {
-            return Err(f.error(format!("expected frame {}, got {frame}", times.len())));
+impl Csv {
+    /// Opens `path` and checks its header.
+    fn open(path: &Path, header: &'static str) -> Result<Csv> {
+        let mut lines = Lines::open(path)?;
+        let first = lines.next().transpose()?.map_or(String::new(), |(_, l)| l);
+        let first = first.trim_start_matches('\u{feff}').trim();
+        if first != header {
+            return Err(SensorError::parse(
+                path,
+                1,
+                format!("expected the header `{header}`, got `{first}`"),
+            ));
         }
-        times.push(f.f64(1, "time_s")?);
-        Ok(())
-    })?;
-    Ok(times)
+        Ok(Csv {
+            lines,
+            header,
+            columns: header.split(',').count(),
+        })
+    }
+
+    /// The next data line, handed to `row` with its fields checked for their number.
+    fn next_row<T>(&mut self, row: impl FnOnce(&Fields) -> Result<T>) -> Option<Result<T>> {
+        loop {
+            let (line, content) = match self.lines.next()? {
+                Ok(next) => next,
+                Err(e) => return Some(Err(e)),
+            };
+            if content.trim().is_empty() {
+                continue;
+            }
+            let fields = Fields::csv(self.lines.path(), line, &content);
+            return Some(
+                fields
+                    .expect_len(self.columns, self.header)
+                    .and_then(|()| row(&fields)),
+            );
+        }
+    }
+
+    /// Every data line through `row`.
+    fn rows<T>(
+        mut self,
+        mut row: impl FnMut(&Fields) -> Result<T>,
+    ) -> impl Iterator<Item = Result<T>> {
+        std::iter::from_fn(move || self.next_row(&mut row))
+    }
 }
 
-/// The observations of each frame.
-fn read_detections(
-    path: &Path,
-    frame_times: &[f64],
-    options: &VictoriaParkOptions,
-) -> Result<Vec<Vec<Observation>>> {
-    let mut frames: Vec<Vec<Observation>> = frame_times.iter().map(|_| Vec::new()).collect();
-    let sigmas = [
-        options.sigma_range,
-        options.sigma_bearing,
-        options.sigma_radius,
-    ];
-    read_csv(path, DETECTIONS.1, |f| {
-        let frame = f.usize(0, "frame")?;
-        let [time, range, bearing, diameter] = f.f64s(1, "detection")?;
-        let Some(&frame_time) = frame_times.get(frame) else {
-            return Err(f.error(format!(
-                "frame {frame} is not in {} ({} frames)",
-                FRAMES.0,
-                frame_times.len()
+/// One line of `tree_detections.csv`.
+struct Detection {
+    line: usize,
+    frame: usize,
+    time: f64,
+    range: f64,
+    bearing: f64,
+    diameter: f64,
+}
+
+/// The lines of `tree_detections.csv`.
+struct Detections(Csv);
+
+impl Iterator for Detections {
+    type Item = Result<Detection>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.0.next_row(|f| {
+            let frame = f.usize(0, "frame")?;
+            let [time, range, bearing, diameter] = f.f64s(1, "detection")?;
+            Ok(Detection {
+                line: f.line(),
+                frame,
+                time,
+                range,
+                bearing,
+                diameter,
+            })
+        })
+    }
+}
+
+/// One [`Event::Observations`] per line of `laser_frame_times.csv` (frames numbered 0, 1,
+/// 2, ...), holding the detections of that frame.
+struct FrameObservations {
+    frames: Csv,
+    detections: std::iter::Peekable<Detections>,
+    detections_file: PathBuf,
+    options: VictoriaParkOptions,
+    /// Frames read so far.
+    count: usize,
+}
+
+impl FrameObservations {
+    /// The observations of frame `frame` at `frame_time`: the detections that follow, up to
+    /// the first of a later frame.
+    fn observations(&mut self, frame: usize, frame_time: f64) -> Result<Vec<Observation>> {
+        let sigmas = [
+            self.options.sigma_range,
+            self.options.sigma_bearing,
+            self.options.sigma_radius,
+        ];
+        let file = &self.detections_file;
+        let mut observations = Vec::new();
+        // The detections up to this frame, and an error that comes first.
+        let this_frame = |d: &Result<Detection>| d.as_ref().is_ok_and(|d| d.frame <= frame);
+        while let Some(next) = self.detections.next_if(|d| d.is_err() || this_frame(d)) {
+            let d = next?;
+            if d.frame < frame {
+                return Err(SensorError::parse(
+                    file,
+                    d.line,
+                    format!(
+                        "frame {} after frame {frame}: detections must be in frame order",
+                        d.frame
+                    ),
+                ));
+            }
+            if (d.time - frame_time).abs() > TIME_TOLERANCE {
+                return Err(SensorError::parse(
+                    file,
+                    d.line,
+                    format!(
+                        "frame {frame} is at {frame_time} s in {}, not {} s",
+                        FRAMES.0, d.time
+                    ),
+                ));
+            }
+            let bearing = d.bearing - std::f64::consts::FRAC_PI_2;
+            let pole = PoleObservation::new(d.range, bearing, d.diameter / 2.0, sigmas)
+                .map_err(|e| at(file, d.line, e.into()))?;
+            observations.push(Observation {
+                robot_from_sensor: self.options.vehicle.robot_from_laser(),
+                measurement: Box::new(pole),
+                landmark_id: None,
+            });
+        }
+        Ok(observations)
+    }
+}
+
+impl Iterator for FrameObservations {
+    type Item = Result<Point>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let expected = self.count;
+        let row = self.frames.next_row(|f| {
+            let frame = f.usize(0, "frame")?;
+            if frame != expected {
+                return Err(f.error(format!("expected frame {expected}, got {frame}")));
+            }
+            Ok((f.line(), f.f64(1, "time_s")?))
+        });
+        let Some(row) = row else {
+            // Detections left over name frames that are not in the file.
+            let (line, frame) = match self.detections.next()? {
+                Ok(d) => (d.line, d.frame),
+                Err(e) => return Some(Err(e)),
+            };
+            return Some(Err(SensorError::parse(
+                &self.detections_file,
+                line,
+                format!(
+                    "frame {frame} is not in {} ({} frames)",
+                    FRAMES.0, self.count
+                ),
             )));
         };
-        if (time - frame_time).abs() > TIME_TOLERANCE {
-            return Err(f.error(format!(
-                "frame {frame} is at {frame_time} s in {}, not {time} s",
-                FRAMES.0
-            )));
-        }
-        let bearing = bearing - std::f64::consts::FRAC_PI_2;
-        let pole = PoleObservation::new(range, bearing, diameter / 2.0, sigmas)
-            .map_err(|e| f.wrap(e.into()))?;
-        frames[frame].push(Observation {
-            robot_from_sensor: options.vehicle.robot_from_laser(),
-            measurement: Box::new(pole),
-            landmark_id: None,
-        });
-        Ok(())
-    })?;
-    Ok(frames)
-}
-
-/// `(time s, (Lo_m, La_m))` per fix.
-fn read_gps(path: &Path) -> Result<Vec<(f64, Vector2<f64>)>> {
-    let mut fixes = Vec::new();
-    read_csv(path, GPS.1, |f| {
-        let [time_ms, lo, la] = f.f64s(0, "GPS")?;
-        fixes.push((time_ms / 1000.0, Vector2::new(lo, la)));
-        Ok(())
-    })?;
-    Ok(fixes)
+        Some(row.and_then(|(line, time)| {
+            self.count += 1;
+            let observations = self.observations(expected, time)?;
+            Ok(Point {
+                line,
+                time,
+                event: Event::Observations(observations),
+            })
+        }))
+    }
 }
 
 #[cfg(test)]

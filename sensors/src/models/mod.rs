@@ -3,11 +3,13 @@
 //! differences through `slam_core::testing::check_measurement`.
 
 pub mod camera;
+pub mod line_point;
 pub mod pole;
 pub mod range_bearing;
 pub mod wall;
 
 pub use camera::{ImageLineObservation, ImagePointObservation};
+pub use line_point::LinePoint;
 pub use pole::PoleObservation;
 pub use range_bearing::RangeBearing;
 pub use wall::WallObservation;

@@ -22,8 +22,13 @@ use rand_distr::{Distribution, Normal};
 use slam_core::nalgebra::{Vector2, Vector3};
 use slam_core::{Observation, Pose2, Pose3, RobotPose, wrap_angle};
 
+use std::collections::VecDeque;
+
 use crate::error::{Result, SensorError};
-use crate::events::{Clock, Dataset, Event, KnownLandmark, TruthKind};
+use crate::events::{
+    Clock, Dataset, DatasetInfo, Event, EventStream, KnownLandmark, Pump, Step, TimedEvent,
+    TruthKind,
+};
 use crate::models::RangeBearing;
 use crate::odometry::{Integration, Unicycle};
 use crate::scan::LaserScan;
@@ -53,6 +58,7 @@ struct Control {
 }
 
 /// Simulates `world` with the random seed `seed`: the same world and seed give the same run.
+/// This is [`simulate_stream`] collected.
 ///
 /// [`Dataset::landmarks`] lists the point landmarks with their range-bearing ids (pole
 /// centres first, then `[[landmarks]]`: [`TrueMap::point_landmarks`]).
@@ -65,14 +71,51 @@ struct Control {
 /// assert_eq!(run.trajectory.len(), run.dataset.counts().ground_truth);
 /// ```
 pub fn simulate(world: &World, seed: u64) -> Result<Simulation> {
+    let SimulatedStream {
+        events,
+        truth,
+        trajectory,
+    } = simulate_stream(world, seed)?;
+    Ok(Simulation {
+        dataset: events.into_dataset()?,
+        trajectory,
+        truth,
+    })
+}
+
+/// A simulated run whose events are generated one time step at a time, as they are read.
+#[derive(Debug)]
+pub struct SimulatedStream {
+    /// The events of [`Simulation::dataset`], in the same order, generated lazily.
+    pub events: EventStream,
+    /// The world's true map.
+    pub truth: TrueMap,
+    /// The true pose at every step (step k at time k dt), computed up front.
+    pub trajectory: Vec<Pose2>,
+}
+
+/// Simulates `world` with the random seed `seed` step by step: the drive (the true
+/// trajectory) is computed up front, the odometry, scans, images and observations of each step
+/// when the stream reaches it, with the same random draws as [`simulate`], so the events are
+/// the same, bit for bit. An invalid world or a drive that does not reach its waypoints is an
+/// error of this call.
+///
+/// ```
+/// use slam_sensors::sim::{simulate_stream, World};
+/// use slam_sensors::Event;
+/// let mut world = World::default_world();
+/// world.robot.waypoints.truncate(1);
+/// let run = simulate_stream(&world, 7).unwrap();
+/// let steps = run.trajectory.len();
+/// let truths = run.events
+///     .filter(|e| matches!(e.as_ref().unwrap().event, Event::GroundTruth { .. }))
+///     .count();
+/// assert_eq!(truths, steps);
+/// ```
+pub fn simulate_stream(world: &World, seed: u64) -> Result<SimulatedStream> {
     world.validate()?;
     let (trajectory, controls) = drive(world)?;
     let truth = world.true_map();
-    let dt = world.robot.dt;
-    let mut odometry_rng = stream(seed, 1);
-    let mut laser_rng = stream(seed, 2);
-    let mut camera_rng = stream(seed, 3);
-    let mut range_bearing_rng = stream(seed, 4);
     let ceiling = Ceiling {
         lines: truth.ceiling_lines.clone(),
         lamps: world
@@ -81,56 +124,102 @@ pub fn simulate(world: &World, seed: u64) -> Result<Simulation> {
             .map(|l| (Vector3::new(l.x, l.y, l.height), l.radius))
             .collect(),
     };
-    let mut dataset = Dataset::new(format!("simulated {}", world.name), Clock::Seconds);
-    dataset.landmarks = truth.point_landmarks();
-    for (k, pose) in trajectory.iter().enumerate() {
-        let time = k as f64 * dt;
+    let landmarks = truth.point_landmarks();
+    let info = DatasetInfo {
+        name: format!("simulated {}", world.name),
+        clock: Clock::Seconds,
+        landmarks: landmarks.clone(),
+    };
+    let steps = Steps {
+        world: world.clone(),
+        truth: truth.clone(),
+        ceiling,
+        landmarks,
+        trajectory: trajectory.clone(),
+        controls,
+        k: 0,
+        odometry_rng: stream(seed, 1),
+        laser_rng: stream(seed, 2),
+        camera_rng: stream(seed, 3),
+        range_bearing_rng: stream(seed, 4),
+    };
+    Ok(SimulatedStream {
+        events: EventStream::new(info, Pump::new(steps)),
+        truth,
+        trajectory,
+    })
+}
+
+/// The state of a [`simulate_stream`] run: what the steps need, and the next step.
+struct Steps {
+    world: World,
+    truth: TrueMap,
+    ceiling: Ceiling,
+    landmarks: Vec<KnownLandmark>,
+    trajectory: Vec<Pose2>,
+    controls: Vec<Control>,
+    /// The next step.
+    k: usize,
+    odometry_rng: ChaCha8Rng,
+    laser_rng: ChaCha8Rng,
+    camera_rng: ChaCha8Rng,
+    range_bearing_rng: ChaCha8Rng,
+}
+
+impl Step for Steps {
+    /// The events of step `k`: the motion that led to it (from step 1), the true pose, then
+    /// the scan, the image and the observations that the step has.
+    fn step(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<bool> {
+        let k = self.k;
+        let Some(pose) = self.trajectory.get(k) else {
+            return Ok(false);
+        };
+        self.k += 1;
+        let world = &self.world;
+        let time = k as f64 * world.robot.dt;
+        let mut push = |event| out.push_back(TimedEvent { time, event });
         if k > 0 {
-            let motion = noisy_odometry(&controls[k - 1], world, &mut odometry_rng)?;
-            dataset.push(time, Event::Motion(Box::new(motion)));
+            let motion = noisy_odometry(&self.controls[k - 1], world, &mut self.odometry_rng)?;
+            push(Event::Motion(Box::new(motion)));
         }
-        dataset.push(
-            time,
-            Event::GroundTruth {
-                pose: *pose,
-                kind: TruthKind::True,
-            },
-        );
-        if let Some(laser) = world.laser.as_ref().filter(|l| k % l.every == 0) {
-            let scan = cast_scan(pose, laser, &truth, &mut laser_rng)?;
-            dataset.push(
-                time,
-                Event::Scan {
-                    scan,
-                    robot_from_sensor: laser.robot_from_sensor(),
-                },
-            );
+        push(Event::GroundTruth {
+            pose: *pose,
+            kind: TruthKind::True,
+        });
+        if let Some(laser) = world.laser.as_ref().filter(|l| k.is_multiple_of(l.every)) {
+            let scan = cast_scan(pose, laser, &self.truth, &mut self.laser_rng)?;
+            push(Event::Scan {
+                scan,
+                robot_from_sensor: laser.robot_from_sensor(),
+            });
         }
-        if let Some(camera) = world.camera.as_ref().filter(|c| k % c.every == 0) {
+        if let Some(camera) = world.camera.as_ref().filter(|c| k.is_multiple_of(c.every)) {
             let world_from_camera = pose.world_from_sensor(&camera.robot_from_sensor());
-            let image = render_ceiling(&world_from_camera, camera, &ceiling, &mut camera_rng);
-            dataset.push(
-                time,
-                Event::Image {
-                    image,
-                    camera: camera.intrinsics,
-                    robot_from_sensor: camera.robot_from_sensor(),
-                },
+            let image = render_ceiling(
+                &world_from_camera,
+                camera,
+                &self.ceiling,
+                &mut self.camera_rng,
             );
+            push(Event::Image {
+                image,
+                camera: camera.intrinsics,
+                robot_from_sensor: camera.robot_from_sensor(),
+            });
         }
-        if let Some(sensor) = world.range_bearing.as_ref().filter(|s| k % s.every == 0) {
+        if let Some(sensor) = world
+            .range_bearing
+            .as_ref()
+            .filter(|s| k.is_multiple_of(s.every))
+        {
             let observations =
-                observe_landmarks(pose, sensor, &dataset.landmarks, &mut range_bearing_rng)?;
+                observe_landmarks(pose, sensor, &self.landmarks, &mut self.range_bearing_rng)?;
             if !observations.is_empty() {
-                dataset.push(time, Event::Observations(observations));
+                push(Event::Observations(observations));
             }
         }
+        Ok(true)
     }
-    Ok(Simulation {
-        dataset,
-        trajectory,
-        truth,
-    })
 }
 
 /// An independent random stream per purpose, so that e.g. adding a camera does not change

@@ -343,6 +343,29 @@ pub struct TrueMap {
 }
 
 impl TrueMap {
+    /// The map as shapes a map error compares estimated features with
+    /// ([`slam_core::Shape::error_against`]): walls, poles, ceiling lines and lamps (the point
+    /// landmarks are scored by their ids instead).
+    pub fn shapes(&self) -> Vec<slam_core::Shape> {
+        use slam_core::Shape;
+        let walls = self.walls.iter().map(|(start, end)| Shape::Wall {
+            start: *start,
+            end: *end,
+        });
+        let poles = self.poles.iter().map(|(centre, radius)| Shape::Pole {
+            centre: *centre,
+            radius: *radius,
+        });
+        let lines = self.ceiling_lines.iter().map(|(start, end)| Shape::Line {
+            start: *start,
+            end: *end,
+        });
+        let lamps = self.lamps.iter().map(|position| Shape::Point {
+            position: *position,
+        });
+        walls.chain(poles).chain(lines).chain(lamps).collect()
+    }
+
     /// The point landmarks a range-bearing sensor observes, with their ids: the pole centres
     /// first (ids `0..poles.len()`), then the `[[landmarks]]` points.
     pub fn point_landmarks(&self) -> Vec<KnownLandmark> {

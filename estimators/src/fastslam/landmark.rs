@@ -1,0 +1,198 @@
+//! One feature of one particle: the feature, the EKF over its own M-space rows, and its
+//! lifecycle track; and a particle's map of them.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use slam_core::nalgebra::DMatrix;
+use slam_core::{
+    DynMeasurementModel, Feature, FeatureMap, Observation, Pose3, Result, RobotPose, Skips,
+    linearize,
+};
+
+use crate::lifecycle::{
+    LifecycleSettings, OUTSIDE_MSPACE_TOLERANCE, Track, drop_views_when_grown, extension_of, grow,
+};
+use crate::particles::log_normal;
+use crate::particles::pvec::PVec;
+
+/// One feature of one particle.
+#[derive(Clone, Debug)]
+pub(super) struct Landmark<P> {
+    pub feature: Box<dyn Feature>,
+    /// Covariance of the own M-space perturbation (`mspace_dim` square).
+    pub cov: DMatrix<f64>,
+    pub track: Track<P>,
+}
+
+/// A particle's map and what it keeps besides.
+#[derive(Clone, Debug)]
+pub(super) struct LandmarkMap<P> {
+    pub landmarks: PVec<Landmark<P>>,
+    /// Known landmark ids to slots (copied on write: only when a new id appears).
+    pub ids: Arc<BTreeMap<u64, usize>>,
+    /// Slots of tentative features (few), for pruning.
+    pub tentative: Vec<usize>,
+    /// FastSLAM 2.0: the pose covariance accumulated by predictions since the pose was last
+    /// drawn (the pose is their mean meanwhile).
+    pub pending: Option<DMatrix<f64>>,
+}
+
+impl<P> Default for LandmarkMap<P> {
+    fn default() -> Self {
+        LandmarkMap {
+            landmarks: PVec::default(),
+            ids: Arc::new(BTreeMap::new()),
+            tentative: Vec::new(),
+            pending: None,
+        }
+    }
+}
+
+impl<P: RobotPose> Landmark<P> {
+    /// `(ln N(eta; 0, S), eta^T S^-1 eta, dim eta)` of an observation of this feature from
+    /// `pose`; `S = H P H^T + C_eta`, or `2 C_eta` for a tentative feature. `None` when the
+    /// measurement cannot be linearized or `S` is not positive definite.
+    pub(super) fn likelihood(
+        &self,
+        observation: &Observation,
+        pose: &P,
+    ) -> Option<(f64, f64, usize)> {
+        let lin = linearize(
+            observation.measurement.as_ref(),
+            self.feature.as_ref(),
+            pose,
+            &observation.robot_from_sensor,
+        )
+        .ok()?;
+        let s = if self.feature.mspace_dim() == 0 {
+            &lin.cov_eta * 2.0
+        } else {
+            &lin.d_eta_d_own * &self.cov * lin.d_eta_d_own.transpose() + &lin.cov_eta
+        };
+        let (l, d2) = log_normal(&lin.eta, &s)?;
+        Some((l, d2, lin.eta.len()))
+    }
+
+    /// The feature's EKF update by one measurement from a known sensor pose (FastSLAM 1.0):
+    /// `K = P H^T S^-1`, `dx_p = -K eta`, `x_f += B~ dx_p` (eq. 24), Joseph-form covariance.
+    /// A step the feature refuses (it would turn a line around) is not applied.
+    pub(super) fn update<Q: RobotPose>(
+        &mut self,
+        measurement: &dyn DynMeasurementModel,
+        pose: &Q,
+        robot_from_sensor: &Pose3,
+        skips: &mut Skips,
+    ) -> Result<()> {
+        let n = self.feature.mspace_dim();
+        if n == 0 || self.cov.shape() != (n, n) {
+            return Ok(());
+        }
+        let Ok(lin) = linearize(measurement, self.feature.as_ref(), pose, robot_from_sensor) else {
+            skips.count("update: linearization failed");
+            return Ok(());
+        };
+        let h = &lin.d_eta_d_own;
+        let ph_t = &self.cov * h.transpose();
+        let s = h * &ph_t + &lin.cov_eta;
+        let Some(cholesky) = s.cholesky() else {
+            skips.count("update: innovation covariance not positive definite");
+            return Ok(());
+        };
+        let k = cholesky.solve(&ph_t.transpose()).transpose();
+        let dx = -(&k * &lin.eta);
+        if !dx.iter().all(|v| v.is_finite()) {
+            skips.count("update: non-finite state change");
+            return Ok(());
+        }
+        let mut candidate = slam_core::dyn_clone::clone_box(self.feature.as_ref());
+        if candidate.apply_perturbation(&dx).is_err() {
+            skips.count("update: state change refused by the feature");
+            return Ok(());
+        }
+        let i_kh = DMatrix::identity(n, n) - &k * h;
+        let cov = &i_kh * &self.cov * i_kh.transpose() + &k * &lin.cov_eta * k.transpose();
+        self.cov = 0.5 * (&cov + cov.transpose());
+        self.feature = candidate;
+        Ok(())
+    }
+
+    /// Grows the feature (the shared lifecycle rule) with block-diagonal priors for its new
+    /// rows; after a growth by triangulation every earlier view, taken from the particle's
+    /// own path, updates the new rows. Returns whether it grew.
+    pub(super) fn grow(
+        &mut self,
+        observation: &Observation,
+        settings: &LifecycleSettings,
+        skips: &mut Skips,
+    ) -> Result<bool> {
+        let Some(grown) = grow(
+            &mut self.track,
+            &mut self.feature,
+            observation.measurement.as_ref(),
+            settings,
+            skips,
+        )?
+        else {
+            return Ok(false);
+        };
+        let (old_dim, added) = (grown.old_dim, grown.added);
+        let new_dim = old_dim + added;
+        let mut cov = DMatrix::zeros(new_dim, new_dim);
+        if old_dim > 0 && self.cov.shape() == (old_dim, old_dim) {
+            cov.view_mut((0, 0), (old_dim, old_dim))
+                .copy_from(&self.cov);
+        }
+        cov.view_mut((old_dim, old_dim), (added, added))
+            .copy_from(&grown.prior);
+        self.cov = cov;
+        if grown.triangulated {
+            // The particle's path is known: each earlier view is a measurement from its pose.
+            let views = std::mem::take(&mut self.track.views);
+            if let Some((_, others)) = views.split_last() {
+                for view in others {
+                    self.update(
+                        view.measurement.as_ref(),
+                        &view.world_from_sensor,
+                        &Pose3::identity(),
+                        skips,
+                    )?;
+                }
+            }
+            self.track.views = views;
+        }
+        drop_views_when_grown(&mut self.track, self.feature.as_ref());
+        Ok(true)
+    }
+
+    /// Applies the measurement's change outside the M-space (a wall's extent), with the map
+    /// of the feature's rows that it implies ([`FeatureMap::set_coordinates_outside_mspace`]).
+    pub(super) fn extend(
+        &mut self,
+        observation: &Observation,
+        pose: &P,
+        skips: &mut Skips,
+    ) -> Result<()> {
+        let Some(extension) = extension_of(self.feature.as_ref(), observation, pose, skips) else {
+            return Ok(());
+        };
+        let mut single = FeatureMap::new();
+        let id = single.insert(slam_core::dyn_clone::clone_box(self.feature.as_ref()))?;
+        let Ok(transform) =
+            single.set_coordinates_outside_mspace(id, extension, OUTSIDE_MSPACE_TOLERANCE)
+        else {
+            skips.count("extension: refused (it would move the feature inside its M-space)");
+            return Ok(());
+        };
+        if let Some(transform) = transform {
+            let t = &transform.matrix;
+            if t.shape() != self.cov.shape() {
+                skips.count("extension: row map of the wrong size");
+                return Ok(());
+            }
+            self.cov = t * &self.cov * t.transpose();
+        }
+        self.feature = single.remove(id)?;
+        Ok(())
+    }
+}

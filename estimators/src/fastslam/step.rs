@@ -1,0 +1,373 @@
+//! One particle's update step: association against its own map, then, observation by
+//! observation, pairing (weight, EKF update, lifecycle) or a new feature, then pruning.
+
+use std::sync::Arc;
+
+use rand_chacha::ChaCha8Rng;
+use slam_core::nalgebra::{DMatrix, DVector};
+use slam_core::{DynMeasurementModel, Observation, Result, RobotPose, UpdateReport};
+
+use super::landmark::{Landmark, LandmarkMap};
+use super::{FastSlamParams, Proposal, shared_views};
+use crate::association::{
+    Candidate, Choice, Gates, associate, candidate_features, sort_by_distance,
+};
+use crate::lifecycle::{Sighting, Track};
+use crate::particles::{Particle, log_normal};
+
+/// What a particle decided for one observation.
+#[derive(Debug)]
+pub(super) enum Decision {
+    /// Paired with the feature in this slot.
+    Pair(usize),
+    /// Starts a new feature.
+    New,
+    /// Dropped, with the log-likelihood of its best candidate (if any).
+    Reject(Option<f64>),
+}
+
+/// Gates and the step's shared data, the same for every particle.
+pub(super) struct StepContext<'a> {
+    pub params: &'a FastSlamParams,
+    pub step: usize,
+    pub gates: &'a Gates,
+    /// The measurements that triangulate, shared as views.
+    pub shared: Vec<Option<Arc<dyn DynMeasurementModel>>>,
+}
+
+impl<'a> StepContext<'a> {
+    pub(super) fn new(
+        params: &'a FastSlamParams,
+        step: usize,
+        gates: &'a Gates,
+        observations: &[Observation],
+    ) -> Self {
+        StepContext {
+            params,
+            step,
+            gates,
+            shared: shared_views(observations),
+        }
+    }
+
+    /// `(pairing gate, new-feature gate)` for an innovation of dimension `dof`.
+    pub(super) fn gates(&self, dof: usize) -> Result<(f64, f64)> {
+        Ok((
+            self.gates.gate(self.params.gate_probability, dof)?,
+            self.gates.gate(self.params.new_feature_probability, dof)?,
+        ))
+    }
+}
+
+/// The per-particle work of one update step.
+pub(super) struct ParticleStep<'a, 'c, P: RobotPose> {
+    pub context: &'c StepContext<'a>,
+    pub particle: &'c mut Particle<P, LandmarkMap<P>>,
+    pub report: UpdateReport,
+    pub log_likelihood: f64,
+    /// Observations whose likelihood the proposal already counted.
+    pub weighted: Vec<bool>,
+    /// The particle's random stream for this step (FastSLAM 2.0).
+    pub rng: ChaCha8Rng,
+}
+
+impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
+    pub(super) fn new(
+        context: &'c StepContext<'a>,
+        particle: &'c mut Particle<P, LandmarkMap<P>>,
+        rng: ChaCha8Rng,
+    ) -> Self {
+        ParticleStep {
+            context,
+            particle,
+            report: UpdateReport::default(),
+            log_likelihood: 0.0,
+            weighted: Vec::new(),
+            rng,
+        }
+    }
+
+    /// The step's log-likelihood and report.
+    pub(super) fn finish(self) -> (f64, UpdateReport) {
+        (self.log_likelihood, self.report)
+    }
+
+    pub(super) fn run(&mut self, observations: &[Observation]) -> Result<()> {
+        self.weighted = vec![false; observations.len()];
+        let decisions = self.associate(observations)?;
+        if self.context.params.proposal == Proposal::Improved {
+            self.propose(observations, &decisions)?;
+        }
+        for (index, decision) in decisions.into_iter().enumerate() {
+            let observation = &observations[index];
+            match decision {
+                Decision::Pair(slot) => self.pair(slot, index, observation)?,
+                Decision::New => self.start(index, observation)?,
+                Decision::Reject(best) => {
+                    self.report.rejected += 1;
+                    if let Some(l) = best {
+                        self.log_likelihood += l;
+                    }
+                }
+            }
+        }
+        self.prune();
+        Ok(())
+    }
+
+    /// Decides every observation against the particle's map before changing it: known
+    /// landmark ids directly, the others by the shared association rule.
+    fn associate(&mut self, observations: &[Observation]) -> Result<Vec<Decision>> {
+        let mut decisions: Vec<Option<Decision>> = Vec::with_capacity(observations.len());
+        let mut open = Vec::new();
+        let mut lists = Vec::new();
+        for (index, observation) in observations.iter().enumerate() {
+            match observation.landmark_id {
+                Some(id) => decisions.push(Some(match self.particle.map.ids.get(&id) {
+                    Some(&slot) => Decision::Pair(slot),
+                    None => Decision::New,
+                })),
+                None => {
+                    decisions.push(None);
+                    open.push(index);
+                    lists.push(self.candidates(observation)?);
+                }
+            }
+        }
+        let settings = self.context.params.association_settings();
+        // Given the particle's pose its features are independent: the joint distance of a
+        // hypothesis is the sum of its pairings' distances.
+        let choices = associate(&lists, &settings, self.context.gates, |pairings| {
+            Some((
+                pairings.iter().map(|c| c.distance).sum(),
+                pairings.iter().map(|c| c.dof).sum(),
+            ))
+        })?;
+        for ((index, list), choice) in open.into_iter().zip(&lists).zip(choices) {
+            decisions[index] = Some(match choice {
+                Choice::Pair(k) => Decision::Pair(list[k].feature),
+                Choice::New => Decision::New,
+                Choice::Ambiguous => Decision::Reject(
+                    list.iter()
+                        .map(|c| c.data)
+                        .fold(None, |best: Option<f64>, l| {
+                            Some(best.map_or(l, |b| b.max(l)))
+                        }),
+                ),
+            });
+        }
+        Ok(decisions
+            .into_iter()
+            .map(|d| d.unwrap_or(Decision::Reject(None)))
+            .collect())
+    }
+
+    /// The particle's features an observation without an id can be of, with their
+    /// likelihoods, nearest first.
+    fn candidates(&mut self, observation: &Observation) -> Result<Vec<Candidate<f64>>> {
+        let pose = self.particle.pose;
+        let world_from_sensor = pose.world_from_sensor(&observation.robot_from_sensor);
+        let landmarks = &self.particle.map.landmarks;
+        let features = landmarks.iter().map(|(slot, l)| (slot, l.feature.as_ref()));
+        let nearby = candidate_features(
+            features,
+            observation.measurement.as_ref(),
+            &world_from_sensor,
+            self.context.params.association_margin,
+            &mut self.report.skipped,
+        );
+        let mut list = Vec::with_capacity(nearby.len());
+        for (slot, feature, _) in nearby {
+            let Some(landmark) = landmarks.get(slot) else {
+                continue;
+            };
+            let Some((log_likelihood, d2, dof)) = landmark.likelihood(observation, &pose) else {
+                self.report
+                    .skipped
+                    .count("association: candidate likelihood not computable");
+                continue;
+            };
+            list.push(Candidate {
+                feature: slot,
+                distance: d2,
+                dof,
+                tentative: feature.mspace_dim() == 0,
+                data: log_likelihood,
+            });
+        }
+        sort_by_distance(&mut list);
+        Ok(list)
+    }
+
+    /// Pairs an observation with the feature in `slot`: weight, sighting, growth, EKF update,
+    /// extension.
+    fn pair(&mut self, slot: usize, index: usize, observation: &Observation) -> Result<()> {
+        let pose = self.particle.pose;
+        let Some(landmark) = self.particle.map.landmarks.get(slot) else {
+            self.report.rejected += 1;
+            return Ok(());
+        };
+        let Some((log_likelihood, d2, dof)) = landmark.likelihood(observation, &pose) else {
+            self.report.rejected += 1;
+            self.report
+                .skipped
+                .count("pairing: likelihood not computable");
+            return Ok(());
+        };
+        let confirmed = landmark.feature.mspace_dim() > 0;
+        if !self.weighted.get(index).copied().unwrap_or(false) {
+            self.log_likelihood += log_likelihood;
+        }
+        self.report.associated += 1;
+        if confirmed {
+            self.report.nis.push((d2, dof));
+        }
+        let context = self.context;
+        let skips = &mut self.report.skipped;
+        let Some(landmark) = self.particle.map.landmarks.get_mut(slot) else {
+            return Ok(());
+        };
+        // As in the EKF: sighting and growth first, then one update on the (new) rows.
+        sight(landmark, context, index, observation, &pose, skips)?;
+        let grown = landmark.grow(observation, &context.params.lifecycle_settings(), skips)?;
+        if confirmed || grown {
+            landmark.update(
+                observation.measurement.as_ref(),
+                &pose,
+                &observation.robot_from_sensor,
+                skips,
+            )?;
+        }
+        landmark.extend(observation, &pose, skips)
+    }
+
+    /// Starts a feature from an observation.
+    fn start(&mut self, index: usize, observation: &Observation) -> Result<()> {
+        let pose = self.particle.pose;
+        let world_from_sensor = pose.world_from_sensor(&observation.robot_from_sensor);
+        let feature = match observation
+            .measurement
+            .initial_feature_dyn(&world_from_sensor)
+        {
+            Ok(Some(feature)) => feature,
+            Ok(None) => {
+                self.report.rejected += 1;
+                return Ok(());
+            }
+            Err(_) => {
+                self.report.rejected += 1;
+                self.report
+                    .skipped
+                    .count("new feature: not placeable from the observation");
+                return Ok(());
+            }
+        };
+        let mut landmark = Landmark {
+            feature,
+            cov: DMatrix::zeros(0, 0),
+            track: Track::started(observation.landmark_id, self.context.step),
+        };
+        self.count_new_feature_likelihood(&landmark, observation, &pose)?;
+        let context = self.context;
+        let skips = &mut self.report.skipped;
+        sight(&mut landmark, context, index, observation, &pose, skips)?;
+        if landmark.grow(observation, &context.params.lifecycle_settings(), skips)? {
+            landmark.update(
+                observation.measurement.as_ref(),
+                &pose,
+                &observation.robot_from_sensor,
+                skips,
+            )?;
+        }
+        let tentative = landmark.feature.mspace_dim() == 0;
+        let id = landmark.track.landmark_id;
+        let map = &mut self.particle.map;
+        let slot = map.landmarks.push(landmark);
+        if tentative {
+            map.tentative.push(slot);
+        }
+        if let Some(id) = id {
+            Arc::make_mut(&mut map.ids).insert(id, slot);
+        }
+        self.report.new_features += 1;
+        Ok(())
+    }
+
+    /// The likelihood this observation would have on the new-feature gate of a feature
+    /// placed by it (`S = 2 C_eta`): what starting a feature is worth against pairing.
+    fn count_new_feature_likelihood(
+        &mut self,
+        landmark: &Landmark<P>,
+        observation: &Observation,
+        pose: &P,
+    ) -> Result<()> {
+        let Ok(lin) = slam_core::linearize(
+            observation.measurement.as_ref(),
+            landmark.feature.as_ref(),
+            pose,
+            &observation.robot_from_sensor,
+        ) else {
+            self.report
+                .skipped
+                .count("new feature: likelihood not computable");
+            return Ok(());
+        };
+        let dof = lin.eta.len();
+        let s = &lin.cov_eta * 2.0;
+        if let Some((at_zero, _)) = log_normal(&DVector::zeros(dof), &s) {
+            let (_, new_gate) = self.context.gates(dof)?;
+            self.log_likelihood += at_zero - 0.5 * new_gate;
+        }
+        Ok(())
+    }
+
+    /// Drops tentative features not seen for `tentative_lifetime` steps.
+    fn prune(&mut self) {
+        let step = self.context.step;
+        let lifetime = self.context.params.tentative_lifetime;
+        let map = &mut self.particle.map;
+        let mut keep = Vec::with_capacity(map.tentative.len());
+        for &slot in &map.tentative {
+            let Some(landmark) = map.landmarks.get(slot) else {
+                continue;
+            };
+            if landmark.feature.mspace_dim() > 0 {
+                continue;
+            }
+            if landmark.track.expired(step, lifetime) {
+                if let Some(id) = landmark.track.landmark_id {
+                    Arc::make_mut(&mut map.ids).remove(&id);
+                }
+                map.landmarks.set(slot, None);
+            } else {
+                keep.push(slot);
+            }
+        }
+        map.tentative = keep;
+    }
+}
+
+/// Counts a sighting of `landmark` on its track (the shared lifecycle), keeping the step's
+/// shared measurement as a view.
+fn sight<P: RobotPose>(
+    landmark: &mut Landmark<P>,
+    context: &StepContext<'_>,
+    index: usize,
+    observation: &Observation,
+    pose: &P,
+    skips: &mut slam_core::Skips,
+) -> Result<()> {
+    let sighting = Sighting {
+        observation,
+        world_from_robot: pose,
+        step: context.step,
+        view_measurement: context.shared.get(index).cloned().flatten(),
+        pose_covariance: None,
+    };
+    landmark.track.sight(
+        landmark.feature.as_ref(),
+        sighting,
+        context.params.max_views,
+        skips,
+    )
+}

@@ -1,0 +1,71 @@
+//! Which blocks of two features may become one shared corner (paper section VI): both
+//! shareable, free, fully estimated, of one kind and within `corner_distance` of each other.
+//! The statistical test and the re-parameterization of the covariance are the estimator's
+//! (`crate::ekf`).
+
+use slam_core::{CoordBlock, Coordinates, Feature, FeatureId, FeatureMap, Result};
+
+use crate::association::BoundingBox;
+
+/// Whether block `k` of `feature` is fully in its own M-space (`E_k B~` has full row rank): a
+/// wall end seen as a real end.
+pub(crate) fn block_estimated(feature: &dyn Feature, k: usize) -> Result<bool> {
+    if feature.mspace_dim() == 0 {
+        return Ok(false);
+    }
+    let coordinates = feature.coordinates();
+    let dim = coordinates.blocks()[k].dim();
+    let rows = feature
+        .dual()?
+        .rows(coordinates.offset(k), dim)
+        .into_owned();
+    if rows.ncols() < dim {
+        return Ok(false);
+    }
+    let singular = rows.singular_values();
+    let largest = singular.max();
+    Ok(singular.len() == dim && largest > 0.0 && singular.min() > 1e-6 * largest.max(1.0))
+}
+
+/// The free shareable blocks of block `k` of feature `id` could join with: blocks of other
+/// confirmed features, of the same kind, within `corner_distance`, not shared yet and fully
+/// estimated, in map order.
+pub(crate) fn corner_partners(
+    map: &FeatureMap,
+    id: FeatureId,
+    k: usize,
+    corner_distance: f64,
+    confirmed: &dyn Fn(FeatureId) -> bool,
+) -> Result<Vec<(FeatureId, usize)>> {
+    let value = map.get(id)?.coordinates().blocks()[k];
+    let here = BoundingBox::of(&Coordinates::new(vec![value])?);
+    let mut partners = Vec::new();
+    for (other, feature) in map.iter() {
+        if other == id
+            || !confirmed(other)
+            || !BoundingBox::of(feature.coordinates()).near(&here, corner_distance)
+        {
+            continue;
+        }
+        for j in feature.shareable_blocks() {
+            let block = feature.coordinates().blocks()[j];
+            if block.kind() != value.kind() || distance(&block, &value) > corner_distance {
+                continue;
+            }
+            if map.links(other)?[j].is_none() && block_estimated(feature, j)? {
+                partners.push((other, j));
+            }
+        }
+    }
+    Ok(partners)
+}
+
+/// Euclidean distance between two blocks of the same kind.
+fn distance(a: &CoordBlock, b: &CoordBlock) -> f64 {
+    a.as_slice()
+        .iter()
+        .zip(b.as_slice())
+        .map(|(x, y)| (x - y).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}

@@ -1,0 +1,182 @@
+//! The metrics of a whole run (what `metrics.json` holds): trajectory error against the
+//! data's truth, map error against a true map or known landmarks, NEES and NIS, counts.
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+use slam_core::Skips;
+use slam_sensors::TruthKind;
+use slam_sensors::laser_odometry::LaserOdometryReport;
+
+use super::{
+    ChiSquareSummary, ErrorStats, MapError, TrajectoryErrors, chi_square_summary, feature_counts,
+    map_error_against_landmarks, map_error_against_truth, path_errors, pose_nees, stamped,
+    trajectory_errors, true_poses,
+};
+use crate::config::Config;
+use crate::error::Result;
+use crate::frontend::FrontendCounts;
+use crate::record::UpdateTotals;
+use crate::run::RunOutput;
+
+/// Everything in `metrics.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunMetrics {
+    /// The data's name.
+    pub data: String,
+    /// The estimator's name.
+    pub estimator: &'static str,
+    /// The `[data] seed`.
+    pub seed: u64,
+    /// Time steps with an estimate.
+    pub steps: usize,
+    /// Events processed.
+    pub events: usize,
+    /// Seconds spent stepping.
+    pub wall_time_s: f64,
+    /// Mean wall time per time step, ms.
+    pub time_per_step_ms: f64,
+    /// ATE after SE(3) alignment, m.
+    pub ate_rmse_m: Option<f64>,
+    /// ATE without alignment, m.
+    pub ate_rmse_unaligned_m: Option<f64>,
+    /// What the ATE compares against.
+    pub ate_against: Option<&'static str>,
+    /// Full statistics of the aligned ATE.
+    pub ate: Option<ErrorStats>,
+    /// ATE (aligned RMSE) of the path the map belongs to, where it is not the estimates' (a
+    /// particle filter: the path of the particle whose map is kept), m.
+    pub map_path_ate_rmse_m: Option<f64>,
+    /// Map error after the trajectory's ATE alignment (where the map is compared with a
+    /// true map), m.
+    pub map_error_m: Option<f64>,
+    /// The same without alignment, m.
+    pub map_error_unaligned_m: Option<f64>,
+    /// The map error in detail.
+    pub map_error: Option<MapError>,
+    /// Robot pose NEES (3 dof) at every step with a true pose.
+    pub nees: Option<ChiSquareSummary>,
+    /// NIS of every paired observation.
+    pub nis: ChiSquareSummary,
+    /// Features by type and M-space dimension.
+    pub features: BTreeMap<String, BTreeMap<usize, usize>>,
+    /// Totals of the update reports.
+    pub updates: UpdateTotals,
+    /// What the estimator left out, by reason.
+    pub skipped: Skips,
+    /// What the front-end produced and dropped.
+    pub frontend: FrontendCounts,
+    /// The matches of `[data.laser_odometry]`.
+    pub laser_odometry: Option<LaserOdometryReportView>,
+    /// The figures of the post-processing stages, by name.
+    pub postprocess: BTreeMap<String, serde_json::Value>,
+    /// The configuration of the run.
+    pub config: Config,
+}
+
+/// The laser odometry's counts, as `metrics.json` holds them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct LaserOdometryReportView {
+    /// Scans whose preceding odometry was replaced by a match.
+    pub matched: usize,
+    /// Scans whose match was refused (their odometry was kept).
+    pub refused: usize,
+}
+
+impl From<&LaserOdometryReport> for LaserOdometryReportView {
+    fn from(report: &LaserOdometryReport) -> Self {
+        LaserOdometryReportView {
+            matched: report.matched,
+            refused: report.refused,
+        }
+    }
+}
+
+impl RunMetrics {
+    /// The metrics of a finished run of `config`.
+    pub fn compute(output: &RunOutput, config: &Config) -> Result<Self> {
+        let record = &output.record;
+        let estimator = output.estimator.as_ref();
+        let trajectory = trajectory_errors(record)?;
+        let map_error = Self::map_error(output, trajectory.as_ref())?;
+        let nees: Vec<(f64, usize)> = pose_nees(&record.estimates, &true_poses(record))
+            .into_iter()
+            .map(|(_, n)| (n, 3))
+            .collect();
+        let map_path_ate_rmse_m = match &output.map_path {
+            Some(path) => {
+                path_errors(record, &stamped(path.iter().copied()))?.map(|t| t.ate_rmse_m)
+            }
+            None => None,
+        };
+        let steps = record.estimates.len();
+        Ok(RunMetrics {
+            data: output.name.clone(),
+            estimator: estimator.name(),
+            seed: config.data.seed,
+            steps,
+            events: record.events,
+            wall_time_s: output.wall_time_s,
+            time_per_step_ms: 1e3 * output.wall_time_s / steps.max(1) as f64,
+            ate_rmse_m: trajectory.as_ref().map(|t| t.ate_rmse_m),
+            ate_rmse_unaligned_m: trajectory.as_ref().map(|t| t.ate_rmse_unaligned_m),
+            ate_against: trajectory.as_ref().map(|t| t.against),
+            ate: trajectory.as_ref().map(|t| t.ate),
+            map_path_ate_rmse_m,
+            map_error_m: map_error.as_ref().map(|m| m.rms_m),
+            map_error_unaligned_m: output
+                .truth_map
+                .as_ref()
+                .map(|truth| map_error_against_truth(estimator, &truth.shapes(), None).rms_m),
+            map_error,
+            nees: if nees.is_empty() {
+                None
+            } else {
+                Some(chi_square_summary(&nees)?)
+            },
+            nis: record.nis.summary(),
+            features: feature_counts(estimator),
+            updates: record.updates,
+            skipped: record.skipped.clone(),
+            frontend: output.frontend.clone(),
+            laser_odometry: output.laser_odometry.as_ref().map(Into::into),
+            postprocess: output
+                .postprocess
+                .iter()
+                .map(|p| (p.name.clone(), p.metrics.clone()))
+                .collect(),
+            config: config.clone(),
+        })
+    }
+
+    /// Features the data named (known landmark ids) are compared with the known landmarks;
+    /// otherwise a simulated world's map is compared with its true map, after the
+    /// trajectory's alignment.
+    fn map_error(
+        output: &RunOutput,
+        trajectory: Option<&TrajectoryErrors>,
+    ) -> Result<Option<MapError>> {
+        let estimator = output.estimator.as_ref();
+        let has_truth_poses = output.record.truth.iter().any(|t| t.2 == TruthKind::True);
+        let named = estimator
+            .map()
+            .iter()
+            .any(|(id, _)| estimator.landmark_id(id).is_some());
+        let error = if named && !output.landmarks.is_empty() {
+            Some(map_error_against_landmarks(
+                estimator,
+                &output.landmarks,
+                !has_truth_poses,
+            )?)
+        } else {
+            output.truth_map.as_ref().map(|truth| {
+                map_error_against_truth(
+                    estimator,
+                    &truth.shapes(),
+                    trajectory.map(|t| &t.alignment),
+                )
+            })
+        };
+        Ok(error.filter(|m| m.count > 0))
+    }
+}

@@ -1,0 +1,118 @@
+//! Evaluation anyone can call: trajectory errors (ATE, RPE, [`trajectory`]), consistency
+//! (NEES, NIS, [`ChiSquareSummary`]), map error ([`map_error_against_truth`],
+//! [`map_error_against_landmarks`]) and the metrics of a whole run ([`RunMetrics`], what
+//! `metrics.json` holds).
+
+mod consistency;
+mod map;
+mod metrics;
+pub mod trajectory;
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+use slam_core::Pose2;
+use slam_core::nalgebra::Vector3;
+use slam_sensors::TruthKind;
+use slam_sensors::data::StampedPose;
+
+use crate::error::Result;
+use crate::record::Recorder;
+
+pub use consistency::{
+    ChiSquareAccumulator, ChiSquareSummary, Record, chi_square_summary, pose_nees,
+};
+pub use map::{
+    MapError, confirmed, coordinate_covariance, feature_counts, map_error_against_landmarks,
+    map_error_against_truth, shared_dims,
+};
+pub use metrics::RunMetrics;
+pub use trajectory::{AlignMode, Alignment, ErrorStats, associate, ate, umeyama};
+
+/// The trajectory errors of a run against its ground truth (or reference) poses.
+#[derive(Clone, Debug, Serialize)]
+pub struct TrajectoryErrors {
+    /// ATE after the least-squares rigid alignment (Umeyama, no scale; `evo_ape -a`), m.
+    pub ate_rmse_m: f64,
+    /// ATE without alignment, m.
+    pub ate_rmse_unaligned_m: f64,
+    /// Full statistics of the aligned ATE.
+    pub ate: ErrorStats,
+    /// Whether the poses compared against are independent truth or another system's output.
+    pub against: &'static str,
+    /// The alignment of the estimate onto the references.
+    #[serde(skip)]
+    pub alignment: Alignment,
+}
+
+/// Stamped 3-D poses (z = 0) of `(time, pose)` pairs.
+pub fn stamped(poses: impl IntoIterator<Item = (f64, Pose2)>) -> Vec<StampedPose> {
+    poses
+        .into_iter()
+        .map(|(time, pose)| StampedPose {
+            time,
+            pose: pose.to_pose3(0.0),
+        })
+        .collect()
+}
+
+/// The independent true poses of a run, by the bits of their time.
+pub fn true_poses(record: &Recorder) -> BTreeMap<u64, Pose2> {
+    record
+        .truth
+        .iter()
+        .filter(|(_, _, kind)| *kind == TruthKind::True)
+        .map(|(t, p, _)| (t.to_bits(), *p))
+        .collect()
+}
+
+/// ATE of `est` against the run's truth poses (`True` preferred, else `Reference`, else GPS
+/// fixes, paired within half a second); `None` when fewer than 3 poses pair.
+pub fn path_errors(record: &Recorder, est: &[StampedPose]) -> Result<Option<TrajectoryErrors>> {
+    let of_kind = |kind: TruthKind| -> Vec<StampedPose> {
+        stamped(
+            record
+                .truth
+                .iter()
+                .filter(|(_, _, k)| *k == kind)
+                .map(|(t, p, _)| (*t, *p)),
+        )
+    };
+    let gps: Vec<StampedPose> = record
+        .gps
+        .iter()
+        .map(|(t, p)| StampedPose {
+            time: *t,
+            pose: slam_core::Pose3::new(Vector3::new(p.x, p.y, 0.0), 0.0, 0.0, 0.0),
+        })
+        .collect();
+    let (gt, against, max_dt) = match of_kind(TruthKind::True) {
+        gt if !gt.is_empty() => (gt, "ground truth", 1e-6),
+        _ => match of_kind(TruthKind::Reference) {
+            reference if !reference.is_empty() => (reference, "reference poses of the data", 1e-6),
+            _ => (gps, "GPS fixes (positions only)", 0.5),
+        },
+    };
+    if gt.len() < 3 {
+        return Ok(None);
+    }
+    let pairs = associate(&gt, est, max_dt);
+    if pairs.len() < 3 {
+        return Ok(None);
+    }
+    let aligned = ate(&gt, est, &pairs, AlignMode::Se3)?;
+    let unaligned = ate(&gt, est, &pairs, AlignMode::None)?;
+    Ok(Some(TrajectoryErrors {
+        ate_rmse_m: aligned.errors.rmse,
+        ate_rmse_unaligned_m: unaligned.errors.rmse,
+        ate: aligned.errors,
+        against,
+        alignment: aligned.alignment,
+    }))
+}
+
+/// ATE of the recorded estimates against the run's truth poses.
+pub fn trajectory_errors(record: &Recorder) -> Result<Option<TrajectoryErrors>> {
+    let est = stamped(record.estimates.iter().map(|r| (r.time, r.pose)));
+    path_errors(record, &est)
+}

@@ -1,0 +1,63 @@
+//! How an extracted wall segment becomes an observation of a wall feature, found by name:
+//! `wall_representation = "mspace"` ([`MspaceWalls`], `slam_features::Wall`), or a
+//! representation registered elsewhere (`"endpoints"`, the naive walls of `slam-examples`).
+//! The key takes the name alone or a table with `type` and the representation's settings.
+
+use std::fmt::Debug;
+
+use serde::{Deserialize, Deserializer, Serialize};
+use slam_core::DynMeasurementModel;
+use slam_sensors::extract::ExtractedSegment;
+
+/// A wall representation, registered by name: the observation of one extracted segment.
+#[typetag::serde(tag = "type")]
+pub trait WallModel: Debug + Send + Sync + dyn_clone::DynClone {
+    /// The observation of `segment` (sensor frame; its covariance already as the front-end
+    /// wants it), for a laser of range deviation `sigma_range`, m.
+    fn observation(
+        &self,
+        segment: &ExtractedSegment,
+        sigma_range: f64,
+    ) -> slam_core::Result<Box<dyn DynMeasurementModel>>;
+}
+
+dyn_clone::clone_trait_object!(WallModel);
+
+/// M-space walls (`slam_features::Wall`): dimensions 0, 2, 3, 4 and shared corners.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MspaceWalls {}
+
+#[typetag::serde(name = "mspace")]
+impl WallModel for MspaceWalls {
+    fn observation(
+        &self,
+        segment: &ExtractedSegment,
+        sigma_range: f64,
+    ) -> slam_core::Result<Box<dyn DynMeasurementModel>> {
+        Ok(Box::new(segment.to_observation(sigma_range)?))
+    }
+}
+
+/// Deserializes a registered value from its name alone (`"mspace"`) or from a table with
+/// `type` and its settings.
+pub(crate) fn by_name<'de, D>(deserializer: D) -> Result<Box<dyn WallModel>, D::Error>
+where
+    D: Deserializer<'de>,
+{
+    let value = toml::Value::deserialize(deserializer)?;
+    let table = match value {
+        toml::Value::String(name) => {
+            let mut table = toml::Table::new();
+            table.insert("type".into(), toml::Value::String(name));
+            table
+        }
+        toml::Value::Table(table) => table,
+        other => {
+            return Err(serde::de::Error::custom(format!(
+                "a wall representation is a name or a table with `type`, not {other}"
+            )));
+        }
+    };
+    Box::<dyn WallModel>::deserialize(toml::Value::Table(table)).map_err(serde::de::Error::custom)
+}

@@ -1,0 +1,54 @@
+//! # slam-runtime
+//!
+//! Between the estimators and the `slam` command: everything a program needs to run a SLAM
+//! session on simulated or real data, as a library.
+//!
+//! - [`Config`]: the TOML configuration (data, estimator, front-end, post-processing,
+//!   outputs), with estimators, front-ends, wall representations and post-processing stages
+//!   **found by name** through `typetag` ([`EstimatorConfig`], [`FrontendConfig`],
+//!   [`frontend::WallModel`], [`PostProcessConfig`]): a crate of its own registers another,
+//!   and a program linked with it runs it from the TOML word.
+//! - [`data`]: data specs read as streams of events (a run's memory does not grow with the
+//!   log).
+//! - [`frontend`]: raw sensor frames in, observations of the map's feature types out.
+//! - [`Session`]: an estimator and a front-end stepping through events, with
+//!   [`Observer`]s; [`Recorder`] keeps the standard record.
+//! - [`run()`]: a whole run from a config; [`eval`]: ATE, RPE, NEES / NIS and map error, and
+//!   [`eval::RunMetrics`] (`metrics.json`).
+//! - [`postprocess`]: stages after the estimator (EM polygonal approximation).
+//!
+//! ```no_run
+//! use slam_runtime::{Config, RunMetrics, run};
+//! let config = Config::from_toml("[estimator]\ntype = \"ekf\"\n", "inline")?;
+//! let output = run(&config, &mut ())?;
+//! let metrics = RunMetrics::compute(&output, &config)?;
+//! println!("ATE {:?} m", metrics.ate_rmse_m);
+//! # Ok::<(), slam_runtime::RuntimeError>(())
+//! ```
+
+#![warn(missing_docs)]
+
+mod config;
+pub mod data;
+mod error;
+mod estimators;
+pub mod eval;
+pub mod frontend;
+pub mod postprocess;
+mod record;
+mod run;
+mod session;
+
+pub use config::{Config, OutputConfig};
+pub use error::{Result, RuntimeError};
+pub use estimators::{EstimatorConfig, Start};
+pub use eval::RunMetrics;
+pub use frontend::{Frontend, FrontendConfig, load_prior};
+pub use postprocess::{PostProcess, PostProcessConfig, PostProcessOutput};
+pub use record::{Recorder, UpdateTotals};
+pub use run::{RunOutput, run};
+pub use session::{Observer, Session};
+
+/// Re-exported so that a crate registering its own estimator, front-end or stage can use
+/// `#[slam_runtime::typetag::serde]` without a dependency of its own.
+pub use typetag;

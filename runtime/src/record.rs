@@ -1,0 +1,78 @@
+//! The standard record of a run: the estimate at every time step (what the trajectory
+//! outputs need), the truth and GPS fixes the data give (what the evaluation needs), and
+//! running totals of the updates. Nothing else grows with the length of the log.
+
+use serde::Serialize;
+use slam_core::nalgebra::{Matrix3, Vector2};
+use slam_core::{Estimator, Pose2, Skips, UpdateReport};
+use slam_sensors::{Event, TimedEvent, TruthKind};
+
+use crate::error::Result;
+use crate::eval::{ChiSquareAccumulator, Record};
+use crate::session::Observer;
+
+/// Totals of the estimator's update reports.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct UpdateTotals {
+    /// Observations paired with a feature.
+    pub associated: usize,
+    /// Observations that started a feature.
+    pub new_features: usize,
+    /// Observations dropped.
+    pub rejected: usize,
+}
+
+/// An [`Observer`] that keeps the standard record of a run.
+#[derive(Clone, Debug, Default)]
+pub struct Recorder {
+    /// The estimate after every time step.
+    pub estimates: Vec<Record>,
+    /// Ground truth or reference poses of the data.
+    pub truth: Vec<(f64, Pose2, TruthKind)>,
+    /// GPS fixes of the data.
+    pub gps: Vec<(f64, Vector2<f64>)>,
+    /// NIS of every paired observation.
+    pub nis: ChiSquareAccumulator,
+    /// Totals of the update reports.
+    pub updates: UpdateTotals,
+    /// What the updates left out, by reason.
+    pub skipped: Skips,
+    /// Events processed.
+    pub events: usize,
+}
+
+impl Observer for Recorder {
+    fn event(
+        &mut self,
+        event: &TimedEvent,
+        update: Option<&UpdateReport>,
+        _: &dyn Estimator<Pose2>,
+    ) -> Result<()> {
+        self.events += 1;
+        match &event.event {
+            Event::GroundTruth { pose, kind } => self.truth.push((event.time, *pose, *kind)),
+            Event::Gps(fix) => self.gps.push((event.time, *fix)),
+            _ => {}
+        }
+        if let Some(report) = update {
+            self.updates.associated += report.associated;
+            self.updates.new_features += report.new_features;
+            self.updates.rejected += report.rejected;
+            for &(value, dof) in &report.nis {
+                self.nis.add(value, dof)?;
+            }
+            self.skipped.merge(&report.skipped);
+        }
+        Ok(())
+    }
+
+    fn step_end(&mut self, time: f64, estimator: &dyn Estimator<Pose2>) -> Result<()> {
+        let c = estimator.pose_covariance();
+        self.estimates.push(Record {
+            time,
+            pose: estimator.pose(),
+            covariance: Matrix3::from_fn(|i, j| c[(i, j)]),
+        });
+        Ok(())
+    }
+}

@@ -1,0 +1,180 @@
+//! A whole run from a [`Config`]: open the data, build the estimator, the front-end and the
+//! post-processing stages by name, step through the events with the standard [`Recorder`],
+//! finish the stages. What the `slam run` command does, minus the files.
+
+use std::time::Instant;
+
+use slam_core::nalgebra::DMatrix;
+use slam_core::{Estimator, Pose2};
+use slam_sensors::laser_odometry::LaserOdometryReport;
+use slam_sensors::sim::TrueMap;
+use slam_sensors::{Event, KnownLandmark, TimedEvent};
+
+use crate::config::Config;
+use crate::error::{Result, RuntimeError};
+use crate::estimators::Start;
+use crate::frontend::FrontendCounts;
+use crate::postprocess::{FinishedRun, PostProcess, PostProcessOutput};
+use crate::record::Recorder;
+use crate::session::{Observer, Session};
+
+/// Everything a run produced.
+pub struct RunOutput {
+    /// The data's name.
+    pub name: String,
+    /// The estimator at the end (its map and last pose).
+    pub estimator: Box<dyn Estimator<Pose2>>,
+    /// The standard record (estimates, truth, GPS fixes, update totals).
+    pub record: Recorder,
+    /// The path the map belongs to, at the times of the estimates, where it is not theirs (a
+    /// particle filter: the path of the particle whose map is kept).
+    pub map_path: Option<Vec<(f64, Pose2)>>,
+    /// What the front-end produced and dropped.
+    pub frontend: FrontendCounts,
+    /// Seconds spent stepping (front-end and estimator; reading the data not included).
+    pub wall_time_s: f64,
+    /// The true map, when the data are simulated.
+    pub truth_map: Option<TrueMap>,
+    /// Surveyed or generated landmark positions of the data.
+    pub landmarks: Vec<KnownLandmark>,
+    /// The matches of `[data.laser_odometry]`.
+    pub laser_odometry: Option<LaserOdometryReport>,
+    /// What the post-processing stages produced, in their order.
+    pub postprocess: Vec<PostProcessOutput>,
+}
+
+/// Runs `config`: `observer` watches the session besides the standard record (e.g. a
+/// progress bar).
+///
+/// ```no_run
+/// use slam_runtime::{Config, run};
+/// let output = run(&Config::default(), &mut ())?;
+/// println!("{} steps", output.record.estimates.len());
+/// # Ok::<(), slam_runtime::RuntimeError>(())
+/// ```
+pub fn run(config: &Config, observer: &mut dyn Observer) -> Result<RunOutput> {
+    config.validate()?;
+    let data = config.data.open()?;
+    let name = data.events.info.name.clone();
+    let landmarks = data.events.info.landmarks.clone();
+    let mut events = data.events;
+    let (pose, before_motion) = initial_pose(&mut events)?;
+    let [sx, sy, st] = config.data.initial_pose_sigma;
+    let start = Start {
+        pose,
+        covariance: DMatrix::from_diagonal(&slam_core::nalgebra::DVector::from_vec(vec![
+            sx * sx,
+            sy * sy,
+            st * st,
+        ])),
+    };
+    let estimator = config.estimator.build(&start)?;
+    let frontend = config.frontend.build(&data.sensors)?;
+    let mut stages = config
+        .postprocess
+        .iter()
+        .map(|stage| stage.build())
+        .collect::<Result<Vec<Box<dyn PostProcess>>>>()?;
+    let mut session = Session::new(estimator, frontend);
+    let mut record = Recorder::default();
+    let limit = match config.data.max_events {
+        0 => usize::MAX,
+        n => n,
+    };
+    let all = before_motion.into_iter().map(Ok).chain(events).take(limit);
+    let wall_time_s = {
+        let mut observers: Vec<&mut dyn Observer> = vec![&mut record, observer];
+        for stage in &mut stages {
+            observers.push(stage.as_mut());
+        }
+        timed_run(&mut session, all, &mut observers)?
+    };
+    let (estimator, frontend) = session.into_parts();
+    let map_path = map_path(estimator.as_ref(), &record)?;
+    let finished = FinishedRun {
+        name: &name,
+        record: &record,
+        estimator: estimator.as_ref(),
+        map_path: map_path.as_deref(),
+    };
+    let postprocess = stages
+        .into_iter()
+        .map(|stage| stage.finish(&finished))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(RunOutput {
+        name,
+        estimator,
+        map_path,
+        frontend: frontend.counts(),
+        wall_time_s,
+        truth_map: data.truth,
+        landmarks,
+        laser_odometry: data.laser_odometry.map(|c| c.report()),
+        record,
+        postprocess,
+    })
+}
+
+/// Runs the session over `events` and returns the seconds spent stepping (reading and
+/// generating the data excluded, as when the data were loaded first).
+fn timed_run(
+    session: &mut Session,
+    events: impl Iterator<Item = slam_sensors::Result<TimedEvent>>,
+    observer: &mut dyn Observer,
+) -> Result<f64> {
+    let mut seconds = 0.0;
+    for event in events {
+        let event = event?;
+        let clock = Instant::now();
+        session.step(&event, observer)?;
+        seconds += clock.elapsed().as_secs_f64();
+    }
+    let clock = Instant::now();
+    session.finish(observer)?;
+    Ok(seconds + clock.elapsed().as_secs_f64())
+}
+
+/// The first pose of the data: the first truth pose if it comes before any motion, else the
+/// origin; with the events read to find it, to be processed first.
+fn initial_pose(
+    events: &mut impl Iterator<Item = slam_sensors::Result<TimedEvent>>,
+) -> Result<(Pose2, Vec<TimedEvent>)> {
+    let mut read = Vec::new();
+    for event in events.by_ref() {
+        let event = event?;
+        let found = match &event.event {
+            Event::Motion(_) => Some(Pose2::identity()),
+            Event::GroundTruth { pose, .. } => Some(*pose),
+            _ => None,
+        };
+        read.push(event);
+        if let Some(pose) = found {
+            return Ok((pose, read));
+        }
+    }
+    Ok((Pose2::identity(), read))
+}
+
+/// The estimator's map path paired with the estimates' times, where it has one.
+fn map_path(
+    estimator: &dyn Estimator<Pose2>,
+    record: &Recorder,
+) -> Result<Option<Vec<(f64, Pose2)>>> {
+    match estimator.map_path() {
+        Some(path) if path.len() == record.estimates.len() => Ok(Some(
+            record
+                .estimates
+                .iter()
+                .zip(path)
+                .map(|(estimate, pose)| (estimate.time, pose))
+                .collect(),
+        )),
+        Some(path) => Err(RuntimeError::Invariant(format!(
+            "the {} estimator recorded {} poses of its map's path for {} steps",
+            estimator.name(),
+            path.len(),
+            record.estimates.len()
+        ))),
+        None => Ok(None),
+    }
+}

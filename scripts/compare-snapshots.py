@@ -51,6 +51,22 @@ def main():
         if not new_run.is_dir():
             notes.append(f"{old_run.name}: not in the new snapshot")
             continue
+        stages = [d for d in new_run.iterdir() if d.is_dir() and not (old_run / d.name).is_dir()]
+        if stages:
+            # A post-processing stage that used to be the run itself (em-polygon was an
+            # estimator): its map and figures are in its own folder now.
+            for stage in stages:
+                label = f"{old_run.name}/{stage.name}"
+                old_map, new_map = old_run / "map.json", stage / "map.json"
+                if old_map.exists() and new_map.exists():
+                    d, o = compare_json(old_map, new_map, label + "/map.json")
+                    differences += d
+                    compared += 1
+                d, o = compare_json(old_run / "metrics.json", stage / "metrics.json", label)
+                differences += d
+                notes.append(f"{label}: {len(o)} keys on one side only (the run's and the stage's metrics)")
+                compared += 1
+            continue
         for old_file in sorted(old_run.iterdir()):
             new_file = new_run / old_file.name
             label = f"{old_run.name}/{old_file.name}"

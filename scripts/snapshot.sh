@@ -29,17 +29,17 @@ config() { printf "%b" "$2" > "$out/$1.toml"; echo "$out/$1.toml"; }
 run default run
 run seed27 run --seed 27
 run split-merge run "$(config split-merge '[frontend]\nwall_segmentation = "split-merge"\n')"
-run prior-short run "$(config prior-short '[data]\nmax_events = 400\n[frontend]\nwall_segmentation = "prior"\n[frontend.prior]\nprior = "rectangular"\n')"
+run prior-short run "$(config prior-short '[data]\nmax_events = 2400\n[frontend]\ncamera = false\nwall_segmentation = "prior"\n[frontend.prior]\nprior = "rectangular"\n')"
 run fastslam-sim run "$(config fastslam '[estimator]\ntype = "fastslam"\nparticles = 100\n')"
 run ipslam-sim run "$(config ipslam '[estimator]\ntype = "ipslam"\n')"
-run em-polygon-sim run "$(config em-polygon-ekf '[estimator]\ntype = "em-polygon"\nposes = "ekf"\n')"
+run em-polygon-sim run "$(config em-polygon-ekf '[estimator]\ntype = "ekf"\n[[postprocess]]\ntype = "em-polygon"\nposes = "estimate"\n')"
 "$bin" simulate "$world" --out "$out/rb2d" > /dev/null
 run rb2d-run run "$(config noplot '[output]\nplots = false\n')" --data "rb2d:$out/rb2d/run.rb2d"
 run rb2d-jcbb run "$(config rb2d-jcbb "[data]\nspec = \"world:$world\"\n[estimator]\ntype = \"ekf\"\nassociation = \"jcbb\"\nconfirm_after = 2\n[frontend]\nignore_landmark_ids = true\n[output]\nplots = false\n")"
 if [ -d "$data" ]; then
   run vp-ekf run --data "victoria-park:$data/victoria-park"
   run mrclam1 run --data "mrclam:$data/utias-mrclam1:1"
-  run intel-polygon run "$(config em-polygon '[estimator]\ntype = "em-polygon"\n')" \
+  run intel-polygon run "$(config em-polygon '[estimator]\ntype = "dead-reckoning"\n[[postprocess]]\ntype = "em-polygon"\nposes = "given"\n')" \
     --data "carmen:$data/radish-carmen-corrected/intel-corrected.log.gz"
   run intel-ekf-lo run "$(config intel-ekf-lo "[data]\nspec = \"carmen:$data/radish-carmen-corrected/intel-corrected.log.gz\"\n[data.odometry_from_poses]\n[data.laser_odometry]\n[estimator]\ntype = \"ekf\"\nassociation = \"jcbb\"\n")"
 fi

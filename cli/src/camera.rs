@@ -7,7 +7,6 @@ use plotters::prelude::*;
 use slam_sensors::Event;
 use slam_sensors::extract::image::{ImageExtractorParams, extract_image_features};
 
-use crate::data::DataSpec;
 use crate::error::{CliError, Result};
 
 /// Arguments of `slam camera`.
@@ -29,19 +28,24 @@ pub struct CameraArgs {
 
 /// Runs `slam camera`.
 pub fn run(args: &CameraArgs) -> Result<()> {
-    let spec: DataSpec = args.data.parse()?;
-    let loaded = spec.load(args.seed)?;
-    let images: Vec<_> = loaded
-        .dataset
-        .events
-        .into_iter()
-        .filter_map(|e| match e.event {
-            Event::Image { image, camera, .. } => Some((image, camera)),
-            _ => None,
-        })
-        .collect();
-    let count = images.len();
-    let (image, camera) = images.into_iter().nth(args.image).ok_or_else(|| {
+    let data = slam_runtime::data::DataConfig {
+        spec: args.data.clone(),
+        seed: args.seed,
+        ..Default::default()
+    }
+    .open()?;
+    let mut count = 0;
+    let mut found = None;
+    for event in data.events {
+        if let Event::Image { image, camera, .. } = event?.event {
+            if count == args.image {
+                found = Some((image, camera));
+                break;
+            }
+            count += 1;
+        }
+    }
+    let (image, camera) = found.ok_or_else(|| {
         CliError::Usage(format!(
             "--image {} is out of range: the data hold {count} images",
             args.image
@@ -51,8 +55,8 @@ pub fn run(args: &CameraArgs) -> Result<()> {
     let features = extract_image_features(&image, &camera, &params);
     let scale = 3u32;
     let (w, h) = (image.width * scale, image.height * scale);
-    let error = |e: String| CliError::Output {
-        path: args.out.display().to_string(),
+    let error = |e: String| CliError::Figure {
+        path: args.out.clone(),
         message: e,
     };
     if args.out.extension().and_then(|e| e.to_str()) != Some("png") {

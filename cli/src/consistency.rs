@@ -14,11 +14,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 use slam_core::chi2_quantile;
 
-use crate::config::{Config, WallRepresentation};
-use crate::data::DataSpec;
+use slam_runtime::Config;
+use slam_runtime::eval::{map_error_against_truth, pose_nees, trajectory_errors, true_poses};
+
 use crate::error::{CliError, Result};
-use crate::outputs::{map_error_against_truth, pose_nees, trajectory_errors, write_text};
-use crate::pipeline::{self, progress_bar};
+use crate::outputs::{create_dir, write_json, write_text};
 use crate::plot::{LineChart, Series, palette};
 
 /// Arguments of `slam consistency`.
@@ -35,9 +35,10 @@ pub struct ConsistencyArgs {
     /// Simulated data: sim or world:FILE (overrides the config).
     #[arg(long)]
     pub data: Option<String>,
-    /// Wall representations to compare.
+    /// Wall representations to compare: registered names of the `features` front-end's
+    /// `wall_representation` (`mspace`; `endpoints`, the naive walls of slam-examples).
     #[arg(long, value_delimiter = ',', default_value = "mspace,endpoints")]
-    pub walls: Vec<WallRepresentation>,
+    pub walls: Vec<String>,
     /// Output folder (consistency.json, consistency.csv, consistency.png).
     #[arg(long, default_value = "consistency")]
     pub out: PathBuf,
@@ -100,34 +101,26 @@ pub struct Report {
 
 /// One seeded run of `config` (whose data must be simulated).
 fn one_run(config: &Config, seed: u64) -> Result<RunOutcome> {
-    let spec: DataSpec = config.data.spec.parse()?;
-    if !matches!(spec, DataSpec::Sim | DataSpec::World(_)) {
+    if !config.data.data_spec()?.is_simulated() {
         return Err(CliError::Usage(format!(
             "slam consistency needs simulated data (sim or world:FILE), not `{}`",
             config.data.spec
         )));
     }
-    let loaded = spec.load_with(seed, &config.data.reader_options())?;
-    let (sigma, factor) = crate::run::sigma_range(config, &loaded)?;
-    let truth_map = loaded.truth.clone();
-    let result = pipeline::run(
-        config,
-        loaded.dataset,
-        sigma,
-        factor,
-        &indicatif::ProgressBar::hidden(),
-    )?;
-    let trajectory = trajectory_errors(&result)?;
-    let map_error_m = truth_map.as_ref().map_or(0.0, |t| {
+    let mut config = config.clone();
+    config.data.seed = seed;
+    let output = slam_runtime::run(&config, &mut ())?;
+    let trajectory = trajectory_errors(&output.record)?;
+    let map_error_m = output.truth_map.as_ref().map_or(0.0, |t| {
         map_error_against_truth(
-            result.estimator.as_ref(),
-            t,
+            output.estimator.as_ref(),
+            &t.shapes(),
             trajectory.as_ref().map(|t| &t.alignment),
         )
         .rms_m
     });
     Ok(RunOutcome {
-        nees: pose_nees(&result),
+        nees: pose_nees(&output.record.estimates, &true_poses(&output.record)),
         ate_rmse_m: trajectory.map(|t| t.ate_rmse_m),
         map_error_m,
     })
@@ -135,7 +128,11 @@ fn one_run(config: &Config, seed: u64) -> Result<RunOutcome> {
 
 /// Runs the study of one representation over `seeds`.
 fn study(config: &Config, seeds: &[u64], band: (f64, f64), quiet: bool) -> Study {
-    let bar = progress_bar(seeds.len(), quiet);
+    let bar = if quiet {
+        indicatif::ProgressBar::hidden()
+    } else {
+        indicatif::ProgressBar::new(seeds.len() as u64)
+    };
     let outcomes: Vec<(u64, Result<RunOutcome>)> = seeds
         .par_iter()
         .map(|&seed| {
@@ -201,7 +198,7 @@ fn study(config: &Config, seeds: &[u64], band: (f64, f64), quiet: bool) -> Study
 /// Runs the study for every representation of `walls` and writes the report.
 pub fn run_study(
     config: &Config,
-    walls: &[WallRepresentation],
+    walls: &[String],
     runs: usize,
     first_seed: u64,
     quiet: bool,
@@ -216,14 +213,10 @@ pub fn run_study(
     );
     let seeds: Vec<u64> = (first_seed..first_seed + runs as u64).collect();
     let mut representations = BTreeMap::new();
-    for &representation in walls {
+    for name in walls {
         let mut config = config.clone();
-        config.frontend.wall_representation = representation;
-        let name = serde_json::to_value(representation)
-            .ok()
-            .and_then(|v| v.as_str().map(str::to_string))
-            .unwrap_or_else(|| format!("{representation:?}"));
-        representations.insert(name, study(&config, &seeds, band, quiet));
+        config.set_frontend_key("wall_representation", toml::Value::String(name.clone()))?;
+        representations.insert(name.clone(), study(&config, &seeds, band, quiet));
     }
     Ok(Report {
         runs,
@@ -262,13 +255,8 @@ pub fn run(args: &ConsistencyArgs) -> Result<()> {
         }
     }
     let dir = &args.out;
-    std::fs::create_dir_all(dir).map_err(|e| CliError::Output {
-        path: dir.display().to_string(),
-        message: e.to_string(),
-    })?;
-    let json = serde_json::to_string_pretty(&report)
-        .map_err(|e| CliError::Usage(format!("serializing the report: {e}")))?;
-    write_text(dir, "consistency.json", &json)?;
+    create_dir(dir)?;
+    write_json(dir, "consistency.json", &report)?;
     write_text(dir, "consistency.csv", &csv(&report))?;
     chart(&report).save(&dir.join("consistency.png"))?;
     for (name, study) in &report.representations {
@@ -374,7 +362,7 @@ mod tests {
         let world = short_world();
         let mut config = Config::default();
         config.data.spec = format!("world:{}", world.display());
-        let walls = [WallRepresentation::Mspace, WallRepresentation::Endpoints];
+        let walls = ["mspace".to_string(), "endpoints".to_string()];
         let report = run_study(&config, &walls, 3, 1, true).unwrap();
         let mspace = &report.representations["mspace"];
         let endpoints = &report.representations["endpoints"];

@@ -11,7 +11,6 @@ use slam_sensors::extract::{
 use slam_sensors::models::scan_plane_to_world;
 use slam_sensors::{Event, LaserScan};
 
-use crate::data::DataSpec;
 use crate::error::{CliError, Result};
 use crate::plot::{Figure, palette};
 
@@ -43,10 +42,20 @@ struct PosedScan {
     pose: Option<Pose2>,
 }
 
-fn scans(events: Vec<slam_sensors::TimedEvent>) -> Vec<PosedScan> {
+/// The scans of the data with the poses given at their times, and every true pose.
+fn scans(events: slam_sensors::EventStream) -> Result<(Vec<PosedScan>, Vec<Pose2>)> {
     let mut out: Vec<(f64, PosedScan)> = Vec::new();
     let mut poses: Vec<(f64, Pose2)> = Vec::new();
+    let mut trajectory = Vec::new();
     for e in events {
+        let e = e?;
+        if let Event::GroundTruth {
+            pose,
+            kind: slam_sensors::TruthKind::True,
+        } = &e.event
+        {
+            trajectory.push(*pose);
+        }
         match e.event {
             Event::Scan {
                 scan,
@@ -66,26 +75,26 @@ fn scans(events: Vec<slam_sensors::TimedEvent>) -> Vec<PosedScan> {
     for (time, posed) in &mut out {
         posed.pose = poses.iter().find(|(t, _)| t == time).map(|(_, p)| *p);
     }
-    out.into_iter().map(|(_, p)| p).collect()
+    Ok((out.into_iter().map(|(_, p)| p).collect(), trajectory))
 }
 
 /// Runs `slam extract`.
 pub fn run(args: &ExtractArgs) -> Result<()> {
-    let spec: DataSpec = args.data.parse()?;
-    let loaded = spec.load(args.seed)?;
-    let default_sigma = match &spec {
-        DataSpec::Sim => slam_sensors::sim::World::default_world()
-            .laser
-            .map_or(0.02, |l| l.sigma_range),
-        _ => 0.03,
-    };
+    let data = slam_runtime::data::DataConfig {
+        spec: args.data.clone(),
+        seed: args.seed,
+        ..Default::default()
+    }
+    .open()?;
+    let default_sigma = data.sensors.laser_sigma_range.unwrap_or(0.03);
     let sigma = args.sigma_range.unwrap_or(default_sigma);
     if !(sigma.is_finite() && sigma > 0.0) {
         return Err(CliError::Usage(format!(
             "--sigma-range must be positive, got {sigma}"
         )));
     }
-    let mut all = scans(loaded.dataset.events);
+    let name = data.events.info.name.clone();
+    let (mut all, trajectory) = scans(data.events)?;
     let count = all.len();
     if args.scan >= count {
         return Err(CliError::Usage(format!(
@@ -116,13 +125,10 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
         "sensor frame"
     };
     let mut figure = Figure::new(
-        format!(
-            "{}: scan {} of {count} ({frame})",
-            loaded.dataset.name, args.scan
-        ),
+        format!("{}: scan {} of {count} ({frame})", name, args.scan),
         1400,
     );
-    if let Some(truth) = &loaded.truth {
+    if let Some(truth) = &data.truth {
         for (a, b) in &truth.walls {
             figure.segment(*a, *b, palette::TRUTH, 2);
         }
@@ -131,7 +137,7 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
         }
         figure.legend("true walls and poles", palette::TRUTH);
     }
-    if let Some(trajectory) = &loaded.trajectory {
+    if !trajectory.is_empty() {
         figure.polyline(
             trajectory.iter().map(|p| p.translation()).collect(),
             palette::TRUE_PATH,

@@ -46,6 +46,20 @@ pub mod palette {
     pub const TRUE_PATH: Colour = plotters::style::RGBColor(60, 60, 60);
     /// Text.
     pub const TEXT: Colour = plotters::style::RGBColor(0, 0, 0);
+
+    /// The colour of a feature's ink ([`slam_core::Ink`]).
+    pub fn ink(ink: slam_core::Ink) -> Colour {
+        use slam_core::Ink;
+        match ink {
+            Ink::Wall => WALL,
+            Ink::WallLineOnly => WALL_LINE_ONLY,
+            Ink::Corner => CORNER,
+            Ink::Ceiling => CEILING,
+            Ink::CeilingDirection => CEILING_DIRECTION,
+            Ink::Pole => POLE,
+            _ => POINT,
+        }
+    }
 }
 
 /// One thing to draw.
@@ -390,8 +404,8 @@ impl Drawing for Figure {
 /// Writes a drawing as PNG or SVG (by the file's extension), completely or not at all: it is
 /// drawn to a temporary file beside the target and renamed into place.
 fn save_drawing(drawing: &impl Drawing, path: &Path) -> Result<()> {
-    let error = |message: String| CliError::Output {
-        path: path.display().to_string(),
+    let error = |message: String| CliError::Figure {
+        path: path.to_path_buf(),
         message,
     };
     let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("");

@@ -8,10 +8,9 @@ use std::time::Instant;
 use plotters::style::RGBColor;
 use slam_core::nalgebra::Vector2;
 use slam_priors::scene::{ScanSpec, Scene, Shape};
-use slam_priors::{Library, Params, SHIPPED, ScanInput, Topology, analyze, infer};
+use slam_priors::{Params, ScanInput, Topology, analyze, infer};
 use slam_sensors::{Event, LaserScan};
 
-use crate::data::DataSpec;
 use crate::error::{CliError, Result};
 use crate::plot::{Figure, palette};
 
@@ -62,55 +61,8 @@ pub struct PriorArgs {
     pub out: PathBuf,
 }
 
-fn prior_error(e: slam_priors::PriorError) -> CliError {
-    CliError::Usage(e.to_string())
-}
-
-/// The shipped priors and then `files` (which may specialize them).
-pub fn library(files: &[PathBuf]) -> Result<Library> {
-    let mut library = Library::shipped().map_err(prior_error)?;
-    for path in files {
-        library.add_file(path).map_err(prior_error)?;
-    }
-    Ok(library)
-}
-
-/// Loads and compiles a prior named by `spec`, after loading `files` into the shipped
-/// library: a shipped prior by its file stem (`rectangular` for `rectangular.prior`; `-` may
-/// stand for `_`), the `name:` of a loaded prior, or the path of a prior file to load.
-/// Unknown names and malformed files are errors that say so (with the file, line and column).
-pub fn load_prior(spec: &str, files: &[PathBuf]) -> Result<slam_priors::Prior> {
-    let mut library = library(files)?;
-    let path = std::path::Path::new(spec);
-    let name = if library.names().iter().any(|n| n == spec) {
-        spec.to_string()
-    } else if let Some((origin, text)) = SHIPPED.iter().find(|(file, _)| {
-        file.strip_suffix(".prior")
-            .is_some_and(|stem| stem.eq_ignore_ascii_case(&spec.replace('-', "_")))
-    }) {
-        // Its `name:` (parsed again on its own; it is in the library already).
-        Library::default().add(text, origin).map_err(prior_error)?
-    } else if path.is_file() {
-        library.add_file(path).map_err(prior_error)?
-    } else {
-        let stems: Vec<&str> = SHIPPED
-            .iter()
-            .filter_map(|(file, _)| file.strip_suffix(".prior"))
-            .collect();
-        return Err(CliError::Usage(format!(
-            "unknown prior {spec:?}: not a shipped prior ({}), not a loaded prior's name ({}) and \
-             not a prior file",
-            stems.join(", "),
-            library
-                .names()
-                .iter()
-                .map(|n| format!("{n:?}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        )));
-    };
-    library.compile(&name).map_err(prior_error)
-}
+use slam_runtime::frontend::prior_library as library;
+use slam_runtime::load_prior;
 
 /// A scan to process, with the true surfaces of a built-in scene.
 struct Input {
@@ -154,9 +106,7 @@ fn load(args: &PriorArgs) -> Result<Input> {
             outliers: args.outliers,
             max_range: 30.0,
         };
-        let sim = scene
-            .simulate_seeded(&spec, args.seed)
-            .map_err(prior_error)?;
+        let sim = scene.simulate_seeded(&spec, args.seed)?;
         // Draw the scene in the sensor frame.
         let (s, c) = pose[2].sin_cos();
         let to_sensor = |p: [f64; 2]| {
@@ -186,12 +136,16 @@ fn load(args: &PriorArgs) -> Result<Input> {
             scene: Some(Scene { shapes }),
         });
     }
-    let spec: DataSpec = args.data.parse()?;
-    let loaded = spec.load(args.seed)?;
-    let name = loaded.dataset.name.clone();
+    let data = slam_runtime::data::DataConfig {
+        spec: args.data.clone(),
+        seed: args.seed,
+        ..Default::default()
+    }
+    .open()?;
+    let name = data.events.info.name.clone();
     let mut count = 0;
-    for event in loaded.dataset.events {
-        if let Event::Scan { scan, .. } = event.event {
+    for event in data.events {
+        if let Event::Scan { scan, .. } = event?.event {
             if count == args.scan {
                 return Ok(Input {
                     name: format!("{name}, scan {}", args.scan),
@@ -213,7 +167,7 @@ pub fn run(args: &PriorArgs) -> Result<()> {
     if args.list {
         let library = library(&args.prior_files)?;
         for name in library.names() {
-            let prior = library.compile(&name).map_err(prior_error)?;
+            let prior = library.compile(&name)?;
             println!("{name} (order {})", prior.order);
         }
         return Ok(());
@@ -226,8 +180,7 @@ pub fn run(args: &PriorArgs) -> Result<()> {
         )));
     }
     let input = load(args)?;
-    let mut scan_input =
-        ScanInput::from_scan(&input.scan, args.sigma_range).map_err(prior_error)?;
+    let mut scan_input = ScanInput::from_scan(&input.scan, args.sigma_range)?;
     if let Some(fov) = &args.fov {
         let (lo, hi) = (fov[0], fov[1]);
         let keep: Vec<usize> = (0..scan_input.len())
@@ -241,7 +194,7 @@ pub fn run(args: &PriorArgs) -> Result<()> {
         };
     }
     let start = Instant::now();
-    let solution = infer(&prior, &scan_input, &Params::default()).map_err(prior_error)?;
+    let solution = infer(&prior, &scan_input, &Params::default())?;
     let elapsed = start.elapsed();
     let regions = solution.regions();
     let surfaces = solution.surfaces();
@@ -277,7 +230,7 @@ pub fn run(args: &PriorArgs) -> Result<()> {
     println!("largest range correction {:.4} m", moved);
     if args.dof {
         if solution.feasible {
-            let dof = analyze(&prior, &solution).map_err(prior_error)?;
+            let dof = analyze(&prior, &solution)?;
             println!(
                 "degrees of freedom: free {}, extrinsic {}, intrinsic {} ({} constraints)",
                 dof.free_dim(),

@@ -3,25 +3,20 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
-use slam_core::nalgebra::Vector3;
+use slam_runtime::{Config, PostProcessOutput, RunMetrics, RunOutput};
 
-use crate::config::Config;
-use crate::data::{DataSpec, Loaded};
-use crate::error::{CliError, Result};
-use crate::eval::{Alignment, ErrorStats, umeyama};
-use crate::frontend::FrontendCounts;
+use crate::error::Result;
+use crate::figures::{run_figure, stage_figure};
 use crate::outputs::{
-    ChiSquareSummary, FigureContext, MapError, chi_square_summary, estimates_csv, feature_counts,
-    map_error_against_landmarks, map_error_against_truth, map_figure, map_json, map_path,
-    path_errors, pose_nees, trajectory_errors, write_text, write_trajectory,
+    create_dir, estimates_csv, map_json, plain_map_json, write_json, write_text, write_trajectory,
 };
-use crate::pipeline::{self, RunResult, UpdateTotals, progress_bar};
+use crate::progress::Progress;
 
 /// Arguments of `slam run`.
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
-    /// Configuration file (TOML, see `slam run --help`); every setting has a default.
+    /// Configuration file (TOML; every table and key is optional, see the README and
+    /// `slam_runtime::Config`).
     pub config: Option<PathBuf>,
     /// Data: sim (the built-in world), world:FILE, carmen:FILE, victoria-park:DIR,
     /// mrclam:DIR or mrclam:DIR:ROBOT, rb2d:FILE. Overrides the config's `[data] spec`.
@@ -38,43 +33,8 @@ pub struct RunArgs {
     pub quiet: bool,
 }
 
-/// Everything in `metrics.json`.
-#[derive(Serialize)]
-struct Metrics {
-    data: String,
-    estimator: &'static str,
-    seed: u64,
-    /// Time steps with an estimate.
-    steps: usize,
-    events: usize,
-    wall_time_s: f64,
-    /// Mean wall time per time step, ms.
-    time_per_step_ms: f64,
-    ate_rmse_m: Option<f64>,
-    ate_rmse_unaligned_m: Option<f64>,
-    ate_against: Option<&'static str>,
-    ate: Option<ErrorStats>,
-    /// ATE (aligned RMSE) of the path the map belongs to, where it is not the estimates' (a
-    /// particle filter: the path of the particle whose map is kept), m.
-    map_path_ate_rmse_m: Option<f64>,
-    /// Map error after the trajectory's ATE alignment (where the map is compared with a
-    /// true map), m.
-    map_error_m: Option<f64>,
-    /// The same without alignment, m.
-    map_error_unaligned_m: Option<f64>,
-    map_error: Option<MapError>,
-    /// Robot pose NEES (3 dof) at every step with a true pose.
-    nees: Option<ChiSquareSummary>,
-    /// NIS of every paired observation.
-    nis: ChiSquareSummary,
-    features: std::collections::BTreeMap<String, std::collections::BTreeMap<usize, usize>>,
-    updates: UpdateTotals,
-    frontend: FrontendCounts,
-    config: Config,
-}
-
-/// Runs `slam run`.
-pub fn run(args: &RunArgs) -> Result<()> {
+/// The configuration of `slam run` with its arguments applied.
+pub fn config_of(args: &RunArgs) -> Result<Config> {
     let mut config = match &args.config {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),
@@ -88,237 +48,89 @@ pub fn run(args: &RunArgs) -> Result<()> {
     if let Some(seed) = args.seed {
         config.data.seed = seed;
     }
-    let summary = run_config(&config, args.quiet)?;
-    println!("{summary}");
+    Ok(config)
+}
+
+/// Runs `slam run`; returns the summary it prints.
+pub fn run(args: &RunArgs) -> Result<String> {
+    run_config(&config_of(args)?, args.quiet)
+}
+
+/// Runs a configuration and writes its outputs; returns a summary (one line, and one per
+/// post-processing stage).
+pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
+    let mut progress = Progress::new(quiet);
+    let output = slam_runtime::run(config, &mut progress)?;
+    progress.finish();
+    let metrics = RunMetrics::compute(&output, config)?;
+    let dir = &config.output.dir;
+    create_dir(dir)?;
+    write_trajectory(dir, &output)?;
+    write_text(dir, "map.json", &map_json(output.estimator.as_ref())?)?;
+    write_text(dir, "estimates.csv", &estimates_csv(&output))?;
+    write_json(dir, "metrics.json", &metrics)?;
+    if config.output.plots {
+        let figure = run_figure(&output);
+        figure.save(&dir.join("map.svg"))?;
+        figure.save(&dir.join("map.png"))?;
+    }
+    let mut summary = summary_line(&output, &metrics, dir);
+    for stage in &output.postprocess {
+        write_stage(dir, stage, &output.name, config.output.plots)?;
+        summary.push('\n');
+        summary.push_str(&stage.summary);
+        summary.push_str(&format!("; outputs in {}", dir.join(&stage.name).display()));
+    }
+    if let Some(report) = &output.laser_odometry
+        && !quiet
+    {
+        eprintln!(
+            "laser odometry: {} scans matched, {} matches refused (odometry kept)",
+            report.matched, report.refused
+        );
+    }
+    Ok(summary)
+}
+
+/// The outputs of a post-processing stage, in a folder of its name: `map.json`,
+/// `metrics.json`, and its figures (`map.svg`, `map.png` with the points it used,
+/// `map-walls.png` without).
+fn write_stage(dir: &Path, stage: &PostProcessOutput, data: &str, plots: bool) -> Result<()> {
+    let folder = dir.join(&stage.name);
+    create_dir(&folder)?;
+    write_text(&folder, "map.json", &plain_map_json(&stage.map)?)?;
+    write_json(&folder, "metrics.json", &stage.metrics)?;
+    if plots {
+        let with_points = stage_figure(stage, data, true);
+        with_points.save(&folder.join("map.svg"))?;
+        with_points.save(&folder.join("map.png"))?;
+        stage_figure(stage, data, false).save(&folder.join("map-walls.png"))?;
+    }
     Ok(())
 }
 
-/// Runs a configuration and writes its outputs; returns a one-line summary.
-pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
-    if let crate::config::EstimatorConfig::EmPolygon(polygon) = &config.estimator {
-        return crate::polygon::run_config(config, polygon, quiet);
-    }
-    let spec: DataSpec = config.data.spec.parse()?;
-    crate::frontend::Frontend::check(&config.frontend)?;
-    let loaded = spec.load_with(config.data.seed, &config.data.reader_options())?;
-    let (sigma_range, noise_factor) = sigma_range(config, &loaded)?;
-    let Loaded {
-        dataset,
-        truth: truth_map,
-        ..
-    } = loaded;
-    let dataset = match &config.data.odometry_from_poses {
-        Some(noise) => crate::data::odometry_from_poses(dataset, noise, config.data.seed)?,
-        None => dataset,
-    };
-    let dataset = match &config.data.laser_odometry {
-        Some(params) => {
-            let (dataset, report) = slam_sensors::laser_odometry::laser_odometry(dataset, params)?;
-            if !quiet {
-                eprintln!(
-                    "laser odometry: {} scans matched, {} matches refused (odometry kept)",
-                    report.matched, report.refused
-                );
-            }
-            dataset
-        }
-        None => dataset,
-    };
-    let name = dataset.name.clone();
-    let landmarks = dataset.landmarks.clone();
-    let bar = progress_bar(dataset.events.len(), quiet);
-    let result = pipeline::run(config, dataset, sigma_range, noise_factor, &bar)?;
-
-    let estimator = result.estimator.as_ref();
-    let trajectory = trajectory_errors(&result)?;
-    let has_truth_poses = result
-        .truth
-        .iter()
-        .any(|t| t.2 == slam_sensors::TruthKind::True);
-    let alignment = trajectory.as_ref().map(|t| &t.alignment);
-    let map_error_unaligned = truth_map
-        .as_ref()
-        .map(|truth| map_error_against_truth(estimator, truth, None).rms_m);
-    // Features the data named (known landmark ids) are compared with the known landmarks;
-    // otherwise a simulated world's map is compared with its true map.
-    let named = estimator
-        .map()
-        .iter()
-        .any(|(id, _)| estimator.landmark_id(id).is_some());
-    let map_error = if named && !landmarks.is_empty() {
-        Some(map_error_against_landmarks(
-            estimator,
-            &landmarks,
-            !has_truth_poses,
-        )?)
-    } else {
-        truth_map
-            .as_ref()
-            .map(|truth| map_error_against_truth(estimator, truth, alignment))
-    }
-    .filter(|m| m.count > 0);
-    let nees_series = pose_nees(&result);
-    let nees: Vec<(f64, usize)> = nees_series.into_iter().map(|(_, n)| (n, 3)).collect();
-    let steps = result.estimates.len();
-    let metrics = Metrics {
-        data: name.clone(),
-        estimator: config.estimator.name(),
-        seed: config.data.seed,
-        steps,
-        events: result.events,
-        wall_time_s: result.wall_time_s,
-        time_per_step_ms: 1e3 * result.wall_time_s / steps.max(1) as f64,
-        ate_rmse_m: trajectory.as_ref().map(|t| t.ate_rmse_m),
-        ate_rmse_unaligned_m: trajectory.as_ref().map(|t| t.ate_rmse_unaligned_m),
-        ate_against: trajectory.as_ref().map(|t| t.against),
-        ate: trajectory.as_ref().map(|t| t.ate),
-        map_path_ate_rmse_m: match map_path(&result) {
-            Some(path) => path_errors(&result, &path)?.map(|t| t.ate_rmse_m),
-            None => None,
-        },
-        map_error_m: map_error.as_ref().map(|m| m.rms_m),
-        map_error_unaligned_m: map_error_unaligned,
-        map_error,
-        nees: if nees.is_empty() {
-            None
-        } else {
-            Some(chi_square_summary(&nees)?)
-        },
-        nis: chi_square_summary(&result.nis)?,
-        features: feature_counts(estimator),
-        updates: result.updates,
-        frontend: result.frontend,
-        config: config.clone(),
-    };
-
-    let dir = &config.output.dir;
-    std::fs::create_dir_all(dir).map_err(|e| CliError::Output {
-        path: dir.display().to_string(),
-        message: e.to_string(),
-    })?;
-    write_trajectory(dir, &result)?;
-    write_text(dir, "map.json", &map_json(estimator)?)?;
-    write_text(dir, "estimates.csv", &estimates_csv(&result))?;
-    let json = serde_json::to_string_pretty(&metrics)
-        .map_err(|e| CliError::Usage(format!("serializing metrics: {e}")))?;
-    write_text(dir, "metrics.json", &json)?;
-    if config.output.plots {
-        draw(
-            dir,
-            &result,
-            &name,
-            truth_map.as_ref(),
-            &landmarks,
-            !has_truth_poses,
-        )?;
-    }
+fn summary_line(output: &RunOutput, metrics: &RunMetrics, dir: &Path) -> String {
     let number = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
-    Ok(format!(
-        "{name}: {} steps in {:.1} s ({:.3} ms/step); ATE {} m ({}); map error {} m; pose NEES \
+    format!(
+        "{}: {} steps in {:.1} s ({:.3} ms/step); ATE {} m ({}); map error {} m; pose NEES \
          mean {}; outputs in {}",
-        steps,
-        result.wall_time_s,
+        output.name,
+        metrics.steps,
+        metrics.wall_time_s,
         metrics.time_per_step_ms,
         number(metrics.ate_rmse_m),
         metrics.ate_against.unwrap_or("no truth"),
         number(metrics.map_error_m),
         number(metrics.nees.as_ref().map(|n| n.mean_per_dof * 3.0)),
         dir.display()
-    ))
-}
-
-/// The laser's range noise the front-end assumes, and the factor by which the covariances of
-/// what it extracts are inflated: the config's `sigma_range` (factor 1), else a simulated
-/// laser's noise with the configured `simulated_noise_factor`, else 3 cm (factor 1).
-pub fn sigma_range(config: &Config, loaded: &Loaded) -> Result<(f64, f64)> {
-    let (sigma, factor) = match (config.frontend.sigma_range, loaded.laser_sigma_range) {
-        (Some(sigma), _) => (sigma, 1.0),
-        (None, Some(sigma)) => (sigma, config.frontend.simulated_noise_factor),
-        (None, None) => (0.03, 1.0),
-    };
-    if sigma.is_finite() && sigma > 0.0 && factor.is_finite() && factor > 0.0 {
-        Ok((sigma, factor))
-    } else {
-        Err(CliError::Usage(format!(
-            "[frontend] sigma_range and simulated_noise_factor must be positive, got {sigma} and \
-             {factor}"
-        )))
-    }
-}
-
-/// How to bring the estimate into the frame the figure's references use: onto the GPS fixes
-/// (nearest estimate within 0.5 s) when there are some, onto known landmarks when the run has
-/// no true poses, else none.
-fn estimate_alignment(
-    result: &RunResult,
-    landmarks: &[slam_sensors::events::KnownLandmark],
-    align_landmarks: bool,
-) -> Option<Alignment> {
-    let as3 = |p: slam_core::nalgebra::Vector2<f64>| Vector3::new(p.x, p.y, 0.0);
-    if result.gps.len() >= 3 {
-        let mut from = Vec::new();
-        let mut to = Vec::new();
-        for (time, fix) in &result.gps {
-            let nearest = result
-                .estimates
-                .partition_point(|r| r.time < *time)
-                .min(result.estimates.len().saturating_sub(1));
-            let record = result.estimates.get(nearest)?;
-            if (record.time - time).abs() <= 0.5 {
-                from.push(as3(record.pose.translation()));
-                to.push(as3(*fix));
-            }
-        }
-        return umeyama(&from, &to, false).ok();
-    }
-    if align_landmarks && !landmarks.is_empty() {
-        let estimator = result.estimator.as_ref();
-        let known: std::collections::BTreeMap<u64, _> =
-            landmarks.iter().map(|l| (l.id, l.position)).collect();
-        let (mut from, mut to) = (Vec::new(), Vec::new());
-        for (id, feature) in estimator.map().iter() {
-            let Some(truth) = estimator.landmark_id(id).and_then(|l| known.get(&l)) else {
-                continue;
-            };
-            if let Some(slam_core::CoordBlock::Point3(p)) = feature.coordinates().blocks().first() {
-                from.push(as3(p.xy()));
-                to.push(as3(*truth));
-            }
-        }
-        return umeyama(&from, &to, false).ok();
-    }
-    None
-}
-
-fn draw(
-    dir: &Path,
-    result: &RunResult,
-    name: &str,
-    truth_map: Option<&slam_sensors::sim::TrueMap>,
-    landmarks: &[slam_sensors::events::KnownLandmark],
-    align_landmarks: bool,
-) -> Result<()> {
-    let estimate_to_truth = estimate_alignment(result, landmarks, align_landmarks);
-    let aligned = if estimate_to_truth.is_some() {
-        " (estimate aligned onto the references)"
-    } else {
-        ""
-    };
-    let context = FigureContext {
-        title: format!("{name}: {} map and path{aligned}", result.estimator.name()),
-        truth_map,
-        landmarks,
-        estimate_to_truth,
-    };
-    let figure = map_figure(result, &context);
-    figure.save(&dir.join("map.svg"))?;
-    figure.save(&dir.join("map.png"))?;
-    Ok(())
+    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use slam_core::Pose2;
+    use slam_core::nalgebra::Vector2;
 
     /// The default world driven only along the corridor and into the pillar room, without
     /// the camera (quick in a debug build).
@@ -434,7 +246,7 @@ mod tests {
         let error = Config::from_file(&path).unwrap_err().to_string();
         assert!(error.contains("gate_probabilty"), "{error}");
         let config = Config {
-            data: crate::config::DataConfig {
+            data: slam_runtime::data::DataConfig {
                 spec: "rb2d:/no/such/file.rb2d".into(),
                 ..Default::default()
             },
@@ -492,5 +304,143 @@ mod tests {
                 "{association}: {points} landmarks"
             );
         }
+    }
+
+    /// An EM-polygon stage on given poses (after dead reckoning, which uses none of them).
+    fn polygon_config(spec: &str, out: &Path) -> Config {
+        let text = format!(
+            "[data]\nspec = \"{spec}\"\n[estimator]\ntype = \"dead-reckoning\"\n\
+             [[postprocess]]\ntype = \"em-polygon\"\nposes = \"given\"\n\
+             [output]\ndir = \"{}\"\n",
+            out.display()
+        );
+        Config::from_toml(&text, "test").unwrap()
+    }
+
+    /// A CARMEN log of a robot in a 6 m x 4 m room, scanning from a few places.
+    fn room_log(dir: &std::path::Path) -> std::path::PathBuf {
+        use std::fmt::Write as _;
+        let walls = [
+            (Vector2::new(0.0, 0.0), Vector2::new(6.0, 0.0)),
+            (Vector2::new(6.0, 0.0), Vector2::new(6.0, 4.0)),
+            (Vector2::new(6.0, 4.0), Vector2::new(0.0, 4.0)),
+            (Vector2::new(0.0, 4.0), Vector2::new(0.0, 0.0)),
+        ];
+        let mut text = String::new();
+        for (k, x) in [1.5, 2.5, 3.5, 4.5].iter().enumerate() {
+            let pose = Pose2::new(*x, 2.0, 1.6 * k as f64);
+            let mut ranges = Vec::new();
+            for b in 0..361 {
+                let bearing = pose.theta - std::f64::consts::FRAC_PI_2
+                    + b as f64 * std::f64::consts::PI / 360.0;
+                let d = Vector2::new(bearing.cos(), bearing.sin());
+                let range = walls
+                    .iter()
+                    .filter_map(|(a, e)| {
+                        let m = slam_core::nalgebra::Matrix2::from_columns(&[d, a - e]);
+                        let t = m.try_inverse()? * (a - pose.translation());
+                        (t.x > 0.0 && (0.0..=1.0).contains(&t.y)).then_some(t.x)
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                ranges.push(format!("{range:.4}"));
+            }
+            let _ = writeln!(
+                text,
+                "FLASER 361 {} {x} 2.0 {t} {x} 2.0 {t} {k}.0 host {k}.0",
+                ranges.join(" "),
+                t = pose.theta
+            );
+        }
+        let path = dir.join("room.log");
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    #[test]
+    fn a_carmen_room_with_given_poses_becomes_four_walls_with_shared_corners() {
+        let dir = temp_dir("room");
+        let log = room_log(dir.path());
+        let out = dir.path().join("out");
+        let config = polygon_config(&format!("carmen:{}", log.display()), &out);
+        let summary = run_config(&config, true).unwrap();
+        assert!(summary.contains("4 segments"), "{summary}");
+        let stage = out.join("em-polygon");
+        let metrics: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(stage.join("metrics.json")).unwrap())
+                .unwrap();
+        assert_eq!(metrics["segments"], 4);
+        assert_eq!(metrics["closed_polylines"], 1);
+        assert_eq!(metrics["shared_corners"], 4);
+        assert!(metrics["mean_point_to_segment_m"].as_f64().unwrap() < 0.01);
+        let ratio = metrics["compression_ratio"].as_f64().unwrap();
+        assert_eq!(ratio, metrics["points"].as_f64().unwrap() / 8.0);
+        // The run's metrics hold the stage's.
+        let run: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap())
+                .unwrap();
+        assert_eq!(run["postprocess"]["em-polygon"]["segments"], 4);
+        let map: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(stage.join("map.json")).unwrap())
+                .unwrap();
+        let features = map["features"].as_array().unwrap();
+        assert_eq!(features.len(), 4);
+        assert!(features.iter().all(|f| f["type"] == "wall"));
+        assert_eq!(map["shared_blocks"].as_array().unwrap().len(), 4);
+        for file in ["map.svg", "map.png", "map-walls.png"] {
+            assert!(stage.join(file).exists(), "{file} missing");
+        }
+    }
+
+    /// The Intel lab with its SLAM-corrected poses (about 160,000 points): run with
+    /// `cargo test --release -p slam-cli intel -- --ignored` (BENCHMARKS.md has the figures).
+    #[test]
+    #[ignore]
+    fn the_intel_lab_becomes_a_polygonal_map() {
+        let log = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../shared/datasets/radish-carmen-corrected/intel-corrected.log.gz");
+        assert!(log.exists(), "{} is absent", log.display());
+        let dir = temp_dir("intel");
+        let out = dir.path().join("out");
+        run_config(
+            &polygon_config(&format!("carmen:{}", log.display()), &out),
+            true,
+        )
+        .unwrap();
+        let metrics: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join("em-polygon/metrics.json")).unwrap(),
+        )
+        .unwrap();
+        let points = metrics["points"].as_u64().unwrap();
+        let mean = metrics["mean_point_to_segment_m"].as_f64().unwrap();
+        let ratio = metrics["compression_ratio"].as_f64().unwrap();
+        assert!((150_000..170_000).contains(&points), "{points} points");
+        assert!(mean < 0.05, "mean point-to-segment distance {mean}");
+        assert!(ratio > 50.0, "compression {ratio}");
+    }
+
+    #[test]
+    fn polygon_stages_without_scans_or_with_bad_keys_are_clear_errors() {
+        let dir = temp_dir("errors");
+        let world = Path::new(env!("CARGO_MANIFEST_DIR")).join("../worlds/rb2d-circle.toml");
+        let config = polygon_config(
+            &format!("world:{}", world.display()),
+            &dir.path().join("out"),
+        );
+        let error = run_config(&config, true).unwrap_err().chain();
+        assert!(error.contains("no laser scans"), "{error}");
+        let error = Config::from_toml(
+            "[[postprocess]]\ntype = \"em-polygon\"\nposes = \"gps\"\n",
+            "t",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(error.contains("gps"), "{error}");
+        let error = Config::from_toml(
+            "[[postprocess]]\ntype = \"em-polygon\"\n[postprocess.fit]\nsigma = 1\n",
+            "t",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(error.contains("sigma"), "{error}");
     }
 }

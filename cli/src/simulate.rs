@@ -23,7 +23,7 @@ use slam_sensors::data::{StampedPose, write_atomically, write_tum};
 use slam_sensors::odometry::Integration;
 use slam_sensors::sim::{Simulation, World, simulate};
 
-use crate::error::{CliError, Result};
+use crate::error::Result;
 
 /// Arguments of `slam simulate`.
 #[derive(Debug, clap::Args)]
@@ -65,10 +65,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         run.trajectory.len().saturating_sub(1),
         run.dataset.events.len()
     );
-    std::fs::create_dir_all(&args.out).map_err(|e| CliError::Output {
-        path: args.out.display().to_string(),
-        message: e.to_string(),
-    })?;
+    crate::outputs::create_dir(&args.out)?;
     let header = format!(
         "written by `slam simulate`: world `{}` ({source}), seed {}",
         world.name, args.seed
@@ -122,11 +119,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     );
 
     let map = &run.truth;
-    let json = serde_json::to_string_pretty(map).map_err(|e| CliError::Output {
-        path: args.out.join("truth_map.json").display().to_string(),
-        message: e.to_string(),
-    })?;
-    write(&args.out, "truth_map.json", &json)?;
+    crate::outputs::write_json(&args.out, "truth_map.json", map)?;
     println!(
         "truth_map.json: {} walls, {} corners, {} poles, {} ceiling lines, {} lamps, {} landmarks",
         map.walls.len(),

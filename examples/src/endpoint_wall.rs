@@ -219,6 +219,46 @@ pub struct EndpointWallObservation {
     pub sigma_along: f64,
 }
 
+/// `wall_representation = "endpoints"` in the `features` front-end: every extracted segment
+/// as an [`EndpointWallObservation`], the endpoints' deviation along the wall
+/// `sigma_along_wall` (m) where no real end was seen. Registered by name through `typetag`,
+/// the way any crate adds a wall representation; the `slam` command links this crate.
+///
+/// ```toml
+/// [frontend.wall_representation]
+/// type = "endpoints"
+/// sigma_along_wall = 1.0
+/// ```
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EndpointWalls {
+    /// Standard deviation along the wall of an endpoint not seen as a real end, m.
+    pub sigma_along_wall: f64,
+}
+
+impl Default for EndpointWalls {
+    fn default() -> Self {
+        EndpointWalls {
+            sigma_along_wall: 1.0,
+        }
+    }
+}
+
+#[typetag::serde(name = "endpoints")]
+impl slam_runtime::frontend::WallModel for EndpointWalls {
+    fn observation(
+        &self,
+        segment: &slam_sensors::extract::ExtractedSegment,
+        sigma_range: f64,
+    ) -> Result<Box<dyn slam_core::DynMeasurementModel>> {
+        let observation = segment.to_observation(sigma_range)?;
+        Ok(Box::new(EndpointWallObservation::new(
+            observation,
+            self.sigma_along_wall,
+        )?))
+    }
+}
+
 impl EndpointWallObservation {
     /// The naive observation of a segment.
     pub fn new(segment: WallObservation, sigma_along: f64) -> Result<Self> {

@@ -7,8 +7,9 @@
 //! runs through the generic map and measurement chain.
 //!
 //! [`EndpointWall`] is a second one: the naive wall representation (both endpoints in the
-//! state, large variance along the wall) that the M-space paper's Fig. 1 argues against. The
-//! `slam` command runs it through the EKF by configuration, for the comparison.
+//! state, large variance along the wall) that the M-space paper's Fig. 1 argues against.
+//! [`EndpointWalls`] registers it as the wall representation `"endpoints"`, so the `slam`
+//! command (which links this crate) runs it by configuration, for the comparison.
 
 #![warn(missing_docs)]
 
@@ -16,7 +17,7 @@ pub mod door;
 pub mod endpoint_wall;
 
 pub use door::{Door, DoorObservation};
-pub use endpoint_wall::{EndpointWall, EndpointWallObservation};
+pub use endpoint_wall::{EndpointWall, EndpointWallObservation, EndpointWalls};
 
 #[cfg(doctest)]
 #[doc = include_str!("../../README.md")]

@@ -109,8 +109,20 @@ pub trait Feature: dyn_clone::DynClone + Debug + Send + Sync + Any {
     /// `B(x_f)` restricted to the own rows: `mspace_dim x dim(x_f)` (eq. 10, Table II).
     fn projection(&self) -> Result<DMatrix<f64>>;
 
-    /// `B~(x_f)`, the dual: `dim(x_f) x mspace_dim` with `B B~ = I` (eqs. 11-12).
-    fn dual(&self) -> Result<DMatrix<f64>>;
+    /// `B~(x_f)`, the dual: `dim(x_f) x mspace_dim` with `B B~ = I` (eqs. 11-12). The default
+    /// is the minimum-norm right inverse `B^T (B B^T)^-1`; a feature whose paper form of B~
+    /// differs (Table II) gives its own.
+    fn dual(&self) -> Result<DMatrix<f64>> {
+        let b = self.projection()?;
+        let gram = &b * b.transpose();
+        match gram.try_inverse() {
+            Some(inverse) => Ok(b.transpose() * inverse),
+            None => Err(Error::Singular(format!(
+                "B of a {} (rows not independent)",
+                self.kind()
+            ))),
+        }
+    }
 
     /// `x_f += B~(x_f) dx_p` (eq. 24). On error the feature is unchanged.
     ///

@@ -1,9 +1,9 @@
 //! Data association, shared by the EKF and by each FastSLAM particle: which feature an
 //! observation without a landmark id is of.
 //!
-//! An estimator lists, per observation, its [`Candidate`]s: the features the observation can
-//! be of ([`candidate_features`]: same type, near, plausible) with the squared Mahalanobis
-//! distance of the innovation under its own covariance. [`associate`] then chooses by the
+//! An estimator lists, per observation, its candidates: the features the observation can
+//! be of (same type, near, plausible) with the squared Mahalanobis
+//! distance of the innovation under its own covariance; the shared rule then chooses by the
 //! configured [`Association`] rule:
 //! - **nearest neighbour**: each observation to its nearest candidate inside the
 //!   `gate_probability` gate (several observations may pair with one feature: two pieces of

@@ -15,7 +15,7 @@
 //!   an observation that starts a feature by the likelihood it would have on the
 //!   new-feature gate, and an ambiguous (dropped) one by its best candidate's likelihood.
 //! - **Resampling**: systematic (low-variance) when the effective sample size
-//!   `1 / sum w_i^2` falls below `resample_threshold * N` ([`crate::particles`]).
+//!   `1 / sum w_i^2` falls below `resample_threshold * N` (the shared particle machinery).
 //! - **Shared maps**: a particle's map is a persistent vector of features (a 16-ary trie of
 //!   `Arc` nodes): resampling copies roots only (O(N)), and a particle copies a feature (and
 //!   its O(log M) path) only when it changes it.

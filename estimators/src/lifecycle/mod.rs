@@ -8,11 +8,11 @@
 //!    `confirm_after` times (once for a known landmark) is activated and its rows enter with
 //!    their prior ([`slam_core::Feature::growth_prior`], else `new_row_variance`). A feature
 //!    that one measurement cannot place grows when its stored views triangulate it
-//!    ([`triangulation`]).
+//!    (the `triangulation` module).
 //! 3. **Extension**: directions outside the M-space (a wall's extent) follow the
 //!    measurements ([`slam_core::MeasurementModel::extend`]).
 //! 4. **Removal**: a tentative feature not seen for `tentative_lifetime` steps is removed.
-//! 5. **Shared corners** ([`corners`]): blocks of two features that are the same point become
+//! 5. **Shared corners** (the `corners` module): blocks of two features that are the same point become
 //!    one shared block (section VI); the covariance part is the EKF's.
 //!
 //! What differs between estimators (how a covariance grows, how an update is applied) stays

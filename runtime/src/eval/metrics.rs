@@ -70,6 +70,9 @@ pub struct RunMetrics {
     pub laser_odometry: Option<LaserOdometryReportView>,
     /// The figures of the post-processing stages, by name.
     pub postprocess: BTreeMap<String, serde_json::Value>,
+    /// Metrics that could not be computed (left `null` above), with the reason: e.g. the ATE
+    /// of a path whose poses lie on one line, which no alignment determines.
+    pub unavailable: BTreeMap<&'static str, String>,
     /// The configuration of the run.
     pub config: Config,
 }
@@ -97,16 +100,24 @@ impl RunMetrics {
     pub fn compute(output: &RunOutput, config: &Config) -> Result<Self> {
         let record = &output.record;
         let estimator = output.estimator.as_ref();
-        let trajectory = trajectory_errors(record)?;
-        let map_error = Self::map_error(output, trajectory.as_ref())?;
+        let mut unavailable = BTreeMap::new();
+        let trajectory = available(&mut unavailable, "ate", trajectory_errors(record));
+        let map_error = available(
+            &mut unavailable,
+            "map_error",
+            Self::map_error(output, trajectory.as_ref()),
+        );
         let nees: Vec<(f64, usize)> = pose_nees(&record.estimates, &true_poses(record))
             .into_iter()
             .map(|(_, n)| (n, 3))
             .collect();
         let map_path_ate_rmse_m = match &output.map_path {
-            Some(path) => {
-                path_errors(record, &stamped(path.iter().copied()))?.map(|t| t.ate_rmse_m)
-            }
+            Some(path) => available(
+                &mut unavailable,
+                "map_path_ate",
+                path_errors(record, &stamped(path.iter().copied())),
+            )
+            .map(|t| t.ate_rmse_m),
             None => None,
         };
         let steps = record.estimates.len();
@@ -145,6 +156,7 @@ impl RunMetrics {
                 .iter()
                 .map(|p| (p.name.clone(), p.metrics.clone()))
                 .collect(),
+            unavailable,
             config: config.clone(),
         })
     }
@@ -178,5 +190,20 @@ impl RunMetrics {
             })
         };
         Ok(error.filter(|m| m.count > 0))
+    }
+}
+
+/// The value of a metric, or `None` with the reason kept in `unavailable`.
+fn available<T>(
+    unavailable: &mut BTreeMap<&'static str, String>,
+    metric: &'static str,
+    value: Result<Option<T>>,
+) -> Option<T> {
+    match value {
+        Ok(value) => value,
+        Err(error) => {
+            unavailable.insert(metric, error.to_string());
+            None
+        }
     }
 }

@@ -1,0 +1,111 @@
+//! The `slam` command as a library: its arguments, its subcommands and what they write. The
+//! binary (`main.rs`) calls [`main_with`]; a program that registers its own estimator,
+//! front-end or feature type calls it too, to run them through the command's own code path.
+//!
+//! The command knows no concrete estimator or feature type: estimators, front-ends, wall
+//! representations and post-processing stages come from the registries of
+//! [`slam_runtime`], features are drawn and scored through their trait. Linking
+//! `slam_examples` here registers its naive endpoint walls (`wall_representation =
+//! "endpoints"`, for `slam consistency`).
+
+#![warn(missing_docs)]
+
+mod camera;
+mod consistency;
+pub mod error;
+mod eval;
+mod extract;
+mod figures;
+mod outputs;
+mod plot;
+mod prior;
+mod progress;
+mod run;
+mod simulate;
+
+use std::ffi::OsString;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+pub use error::{CliError, Result};
+pub use run::{RunArgs, run_config};
+
+/// Links the example crate, whose `typetag` registrations the command offers by name.
+use slam_examples as _;
+
+/// A SLAM framework for maps made of geometry (walls, ceiling lines, poles, points).
+#[derive(Debug, Parser)]
+#[command(name = "slam", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Run an estimator (default: the EKF on the built-in simulated world) and write
+    /// trajectory.tum, map.json, estimates.csv, metrics.json, map.svg and map.png.
+    Run(run::RunArgs),
+    /// Run the scan front-ends on one scan and draw what they find.
+    Extract(extract::ExtractArgs),
+    /// Run the ceiling-image front-end on one image and draw what it finds.
+    Camera(camera::CameraArgs),
+    /// Measure the estimator's consistency (average pose NEES) over many seeded simulated
+    /// runs, one study per wall representation.
+    Consistency(consistency::ConsistencyArgs),
+    /// Write a simulated run as files other tools read (rb2d, CARMEN, TUM ground truth).
+    Simulate(simulate::SimulateArgs),
+    /// Compare an estimated trajectory with ground truth (ATE, RPE).
+    Eval(eval::EvalArgs),
+    /// Run a structure prior (priorlets) on one scan and draw the corrected readings, the
+    /// region and surface boundaries and the outliers.
+    Prior(prior::PriorArgs),
+}
+
+/// Runs the command line `args` (the first is the program name) and returns what it
+/// printed as its summary.
+///
+/// ```no_run
+/// let summary = slam_cli::command(["slam", "run", "--quiet", "--out", "/tmp/slam-out"])?;
+/// println!("{summary}");
+/// # Ok::<(), slam_cli::CliError>(())
+/// ```
+pub fn command<I, T>(args: I) -> Result<String>
+where
+    I: IntoIterator<Item = T>,
+    T: Into<OsString> + Clone,
+{
+    let cli = Cli::try_parse_from(args).map_err(|e| CliError::Usage(e.to_string()))?;
+    match &cli.command {
+        Command::Run(args) => run::run(args),
+        Command::Extract(args) => extract::run(args).map(|()| String::new()),
+        Command::Camera(args) => camera::run(args).map(|()| String::new()),
+        Command::Simulate(args) => simulate::run(args).map(|()| String::new()),
+        Command::Consistency(args) => consistency::run(args).map(|()| String::new()),
+        Command::Eval(args) => eval::run(args).map(|()| String::new()),
+        Command::Prior(args) => prior::run(args).map(|()| String::new()),
+    }
+}
+
+/// The `slam` binary: parses `args` (help and version print and exit), runs the command,
+/// prints its summary, and on an error prints it with its causes and returns failure.
+pub fn main_with(args: impl IntoIterator<Item = OsString>) -> ExitCode {
+    let cli = Cli::parse_from(args);
+    let result = match &cli.command {
+        Command::Run(args) => run::run(args).map(|summary| println!("{summary}")),
+        Command::Extract(args) => extract::run(args),
+        Command::Camera(args) => camera::run(args),
+        Command::Simulate(args) => simulate::run(args),
+        Command::Consistency(args) => consistency::run(args),
+        Command::Eval(args) => eval::run(args),
+        Command::Prior(args) => prior::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("slam: {}", error.chain());
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -11,13 +11,14 @@
 # FastSLAM on Victoria Park and IPSLAM on the Intel lab (about 20 minutes). Real-data runs
 # are left out when ../shared/datasets (or SLAM_DATA_DIR) is absent.
 set -euo pipefail
+here=$(cd "$(dirname "$0")" && pwd)
 bin=$(realpath "$1")
 out=$(realpath -m "$2")
 mode=${3:-quick}
-data=${SLAM_DATA_DIR:-$(dirname "$0")/../../shared/datasets}
+data=$(realpath -m "${SLAM_DATA_DIR:-$here/../../shared/datasets}")
 mkdir -p "$out"
 cd "$out"
-world=$(realpath "$(dirname "$0")/../worlds/rb2d-circle.toml")
+world=$here/../worlds/rb2d-circle.toml
 
 run() { # name, then slam arguments
   local name=$1; shift

@@ -15,7 +15,7 @@ use serde::Serialize;
 use slam_core::chi2_quantile;
 
 use slam_runtime::Config;
-use slam_runtime::eval::{map_error_against_truth, pose_nees, trajectory_errors, true_poses};
+use slam_runtime::eval::{map_error_against_truth, pose_nees};
 
 use crate::error::{CliError, Result};
 use crate::outputs::{create_dir, write_json, write_text};
@@ -110,7 +110,7 @@ fn one_run(config: &Config, seed: u64) -> Result<RunOutcome> {
     let mut config = config.clone();
     config.data.seed = seed;
     let output = slam_runtime::run(&config, &mut ())?;
-    let trajectory = trajectory_errors(&output.record)?;
+    let trajectory = output.record.trajectory_errors()?;
     let map_error_m = output.truth_map.as_ref().map_or(0.0, |t| {
         map_error_against_truth(
             output.estimator.as_ref(),
@@ -120,7 +120,7 @@ fn one_run(config: &Config, seed: u64) -> Result<RunOutcome> {
         .rms_m
     });
     Ok(RunOutcome {
-        nees: pose_nees(&output.record.estimates, &true_poses(&output.record)),
+        nees: pose_nees(&output.record.estimates, &output.record.true_poses()),
         ate_rmse_m: trajectory.map(|t| t.ate_rmse_m),
         map_error_m,
     })

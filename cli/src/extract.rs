@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use slam_core::nalgebra::Vector2;
 use slam_core::{Pose2, Pose3, RobotPose};
 use slam_sensors::extract::{
-    LineExtractorParams, PoleExtractorParams, extract_poles, extract_segments,
+    ExtractedPole, ExtractedSegment, LineExtractorParams, PoleExtractorParams, extract_poles,
+    extract_segments,
 };
 use slam_sensors::models::scan_plane_to_world;
 use slam_sensors::{Event, LaserScan};
@@ -78,6 +79,29 @@ fn scans(events: slam_sensors::EventStream) -> Result<(Vec<PosedScan>, Vec<Pose2
     Ok((out.into_iter().map(|(_, p)| p).collect(), trajectory))
 }
 
+/// What was extracted from one scan, and how to place it in the world.
+struct Extracted {
+    posed: PosedScan,
+    segments: Vec<ExtractedSegment>,
+    poles: Vec<ExtractedPole>,
+    world_from_sensor: Pose3,
+}
+
+impl Extracted {
+    fn to_world(&self, p: &Vector2<f64>) -> Vector2<f64> {
+        scan_plane_to_world(&self.world_from_sensor, p)
+    }
+
+    /// "world frame" when the data give the scan's pose, else "sensor frame".
+    fn frame(&self) -> &'static str {
+        if self.posed.pose.is_some() {
+            "world frame"
+        } else {
+            "sensor frame"
+        }
+    }
+}
+
 /// Runs `slam extract`.
 pub fn run(args: &ExtractArgs) -> Result<()> {
     let data = slam_runtime::data::DataConfig {
@@ -102,32 +126,13 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
             args.scan
         )));
     }
-    let posed = all.swap_remove(args.scan);
-    let line_params = LineExtractorParams {
-        sigma_range: sigma,
-        ..Default::default()
-    };
-    let pole_params = PoleExtractorParams {
-        sigma_range: sigma,
-        ..Default::default()
-    };
-    let segments = extract_segments(&posed.scan, &line_params);
-    let poles = extract_poles(&posed.scan, &pole_params);
-    let world_from_sensor = posed
-        .pose
-        .unwrap_or_default()
-        .world_from_sensor(&posed.mount);
-    let to_world = |p: &Vector2<f64>| scan_plane_to_world(&world_from_sensor, p);
-
-    let frame = if posed.pose.is_some() {
-        "world frame"
-    } else {
-        "sensor frame"
-    };
-    let mut figure = Figure::new(
-        format!("{}: scan {} of {count} ({frame})", name, args.scan),
-        1400,
+    let extracted = extract(all.swap_remove(args.scan), sigma);
+    let title = format!(
+        "{name}: scan {} of {count} ({})",
+        args.scan,
+        extracted.frame()
     );
+    let mut figure = Figure::new(title, 1400);
     if let Some(truth) = &data.truth {
         for (a, b) in &truth.walls {
             figure.segment(*a, *b, palette::TRUTH, 2);
@@ -145,53 +150,102 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
         );
         figure.legend("true robot path", palette::TRUE_PATH);
     }
-    let points: Vec<_> = posed
-        .scan
+    draw(&mut figure, &extracted);
+    figure.save(&args.out)?;
+    println!(
+        "{} segments, {} poles from scan {} ({} beams, sigma_range {sigma} m); image: {}",
+        extracted.segments.len(),
+        extracted.poles.len(),
+        args.scan,
+        extracted.posed.scan.ranges.len(),
+        args.out.display()
+    );
+    print_table(&extracted);
+    Ok(())
+}
+
+/// The wall segments and poles of one scan for a laser of range deviation `sigma`.
+fn extract(posed: PosedScan, sigma: f64) -> Extracted {
+    let line_params = LineExtractorParams {
+        sigma_range: sigma,
+        ..Default::default()
+    };
+    let pole_params = PoleExtractorParams {
+        sigma_range: sigma,
+        ..Default::default()
+    };
+    let segments = extract_segments(&posed.scan, &line_params);
+    let poles = extract_poles(&posed.scan, &pole_params);
+    let world_from_sensor = posed
+        .pose
+        .unwrap_or_default()
+        .world_from_sensor(&posed.mount);
+    Extracted {
+        posed,
+        segments,
+        poles,
+        world_from_sensor,
+    }
+}
+
+/// The scan's readings, the segments (filled squares at real ends), the poles, the sensor.
+fn draw(figure: &mut Figure, extracted: &Extracted) {
+    let scan = &extracted.posed.scan;
+    let points: Vec<_> = scan
         .points()
         .iter()
-        .map(|p| to_world(&p.position))
+        .map(|p| extracted.to_world(&p.position))
         .collect();
     figure.dots(points.clone(), palette::POINTS, 3);
     figure.legend(
-        format!(
-            "{} valid readings of {}",
-            points.len(),
-            posed.scan.ranges.len()
-        ),
+        format!("{} valid readings of {}", points.len(), scan.ranges.len()),
         palette::POINTS,
     );
-    for s in &segments {
-        let (a, b) = (to_world(&s.ends[0]), to_world(&s.ends[1]));
+    for s in &extracted.segments {
+        let (a, b) = (
+            extracted.to_world(&s.ends[0]),
+            extracted.to_world(&s.ends[1]),
+        );
         figure.segment(a, b, palette::WALL, 4);
         figure.marker(a, palette::WALL, 10, s.real[0]);
         figure.marker(b, palette::WALL, 10, s.real[1]);
     }
     figure.legend(
-        format!("{} wall segments (filled square: real end)", segments.len()),
+        format!(
+            "{} wall segments (filled square: real end)",
+            extracted.segments.len()
+        ),
         palette::WALL,
     );
-    for p in &poles {
-        figure.circle(to_world(&p.centre), p.radius, palette::POLE, true);
+    for p in &extracted.poles {
+        figure.circle(extracted.to_world(&p.centre), p.radius, palette::POLE, true);
     }
-    figure.legend(format!("{} poles", poles.len()), palette::POLE);
-    figure.marker(world_from_sensor.translation.xy(), palette::PATH, 14, true);
+    figure.legend(format!("{} poles", extracted.poles.len()), palette::POLE);
+    let sensor = extracted.world_from_sensor.translation.xy();
+    figure.marker(sensor, palette::PATH, 14, true);
     figure.legend("sensor", palette::PATH);
-    figure.save(&args.out)?;
+}
 
+/// One line per segment (line, length, real ends, deviations, ends) and per pole.
+fn print_table(extracted: &Extracted) {
     println!(
-        "{} segments, {} poles from scan {} ({} beams, sigma_range {sigma} m); image: {}",
-        segments.len(),
-        poles.len(),
-        args.scan,
-        posed.scan.ranges.len(),
-        args.out.display()
+        "{:>8} {:>8} {:>7} {:>6} {:>5} {:>5} {:>9} {:>9} {:>9}  ends ({})",
+        "alpha",
+        "rho",
+        "length",
+        "points",
+        "real0",
+        "real1",
+        "sd_alpha",
+        "sd_rho",
+        "sd_end",
+        extracted.frame()
     );
-    println!(
-        "{:>8} {:>8} {:>7} {:>6} {:>5} {:>5} {:>9} {:>9} {:>9}  ends ({frame})",
-        "alpha", "rho", "length", "points", "real0", "real1", "sd_alpha", "sd_rho", "sd_end"
-    );
-    for s in &segments {
-        let (a, b) = (to_world(&s.ends[0]), to_world(&s.ends[1]));
+    for s in &extracted.segments {
+        let (a, b) = (
+            extracted.to_world(&s.ends[0]),
+            extracted.to_world(&s.ends[1]),
+        );
         println!(
             "{:>8.3} {:>8.3} {:>7.2} {:>6} {:>5} {:>5} {:>9.5} {:>9.5} {:>9.4}  ({:.3}, {:.3}) ({:.3}, {:.3})",
             s.alpha,
@@ -209,11 +263,10 @@ pub fn run(args: &ExtractArgs) -> Result<()> {
             b.y
         );
     }
-    for p in &poles {
+    for p in &extracted.poles {
         println!(
             "pole at ({:.3}, {:.3}) radius {:.3} m, {} points",
             p.centre.x, p.centre.y, p.radius, p.points
         );
     }
-    Ok(())
 }

@@ -9,7 +9,7 @@ use serde::Serialize;
 use slam_core::nalgebra::DMatrix;
 use slam_core::{CoordBlock, Estimator, Feature, FeatureMap, Pose2, RowOwner};
 use slam_runtime::RunOutput;
-use slam_runtime::eval::{confirmed, pose_nees, stamped, true_poses};
+use slam_runtime::eval::{confirmed, pose_nees, stamped};
 use slam_sensors::data::{write_atomically, write_tum};
 
 use crate::error::{CliError, Result};
@@ -164,7 +164,7 @@ fn map_file(map: &FeatureMap, context: &MapContext<'_>) -> Result<String> {
 /// NEES where the data have true poses.
 pub fn estimates_csv(output: &RunOutput) -> String {
     let record = &output.record;
-    let truth = true_poses(record);
+    let truth = record.true_poses();
     let nees: BTreeMap<u64, f64> = pose_nees(&record.estimates, &truth)
         .into_iter()
         .map(|(t, n)| (t.to_bits(), n))

@@ -8,7 +8,7 @@ use std::time::Instant;
 use plotters::style::RGBColor;
 use slam_core::nalgebra::Vector2;
 use slam_priors::scene::{ScanSpec, Scene, Shape};
-use slam_priors::{Params, ScanInput, Topology, analyze, infer};
+use slam_priors::{Params, ScanInput, Solution, Topology, analyze, infer};
 use slam_sensors::{Event, LaserScan};
 
 use crate::error::{CliError, Result};
@@ -165,12 +165,7 @@ fn load(args: &PriorArgs) -> Result<Input> {
 /// Runs `slam prior`.
 pub fn run(args: &PriorArgs) -> Result<()> {
     if args.list {
-        let library = library(&args.prior_files)?;
-        for name in library.names() {
-            let prior = library.compile(&name)?;
-            println!("{name} (order {})", prior.order);
-        }
-        return Ok(());
+        return list_priors(args);
     }
     let prior = load_prior(&args.prior, &args.prior_files)?;
     if !(args.sigma_range.is_finite() && args.sigma_range > 0.0) {
@@ -182,28 +177,73 @@ pub fn run(args: &PriorArgs) -> Result<()> {
     let input = load(args)?;
     let mut scan_input = ScanInput::from_scan(&input.scan, args.sigma_range)?;
     if let Some(fov) = &args.fov {
-        let (lo, hi) = (fov[0], fov[1]);
-        let keep: Vec<usize> = (0..scan_input.len())
-            .filter(|&i| scan_input.phi[i] >= lo && scan_input.phi[i] <= hi)
-            .collect();
-        scan_input = ScanInput {
-            phi: keep.iter().map(|&i| scan_input.phi[i]).collect(),
-            rho: keep.iter().map(|&i| scan_input.rho[i]).collect(),
-            sigma: keep.iter().map(|&i| scan_input.sigma[i]).collect(),
-            beam: keep.iter().map(|&i| scan_input.beam[i]).collect(),
-        };
+        scan_input = within(&scan_input, fov[0], fov[1]);
     }
     let start = Instant::now();
     let solution = infer(&prior, &scan_input, &Params::default())?;
-    let elapsed = start.elapsed();
-    let regions = solution.regions();
-    let surfaces = solution.surfaces();
-    let outliers = solution.outliers();
-    println!(
-        "{}: {} readings, prior {:?}: {} in {:.2?} ({} inner optimizations), largest violation \
-         {:.1e}",
-        input.name,
+    print_solution(
+        &input.name,
+        &prior,
+        &solution,
         scan_input.len(),
+        start.elapsed(),
+    );
+    if args.dof {
+        print_degrees_of_freedom(&prior, &solution)?;
+    }
+    let mut figure = Figure::new(
+        format!("{}: {} (sensor frame)", input.name, prior.name),
+        1400,
+    );
+    if let Some(scene) = &input.scene {
+        draw_scene(&mut figure, scene);
+    }
+    draw_readings(&mut figure, &solution);
+    draw_boundaries(&mut figure, &solution);
+    if args.walls {
+        draw_walls(&mut figure, &solution);
+    }
+    figure.marker(Vector2::zeros(), palette::TRUE_PATH, 14, true);
+    figure.legend("sensor", palette::TRUE_PATH);
+    figure.save(&args.out)?;
+    println!("image: {}", args.out.display());
+    Ok(())
+}
+
+/// `slam prior --list`: the loaded priors with their order.
+fn list_priors(args: &PriorArgs) -> Result<()> {
+    let library = library(&args.prior_files)?;
+    for name in library.names() {
+        let prior = library.compile(&name)?;
+        println!("{name} (order {})", prior.order);
+    }
+    Ok(())
+}
+
+/// The readings of `input` whose bearings lie in `[lo, hi]`.
+fn within(input: &ScanInput, lo: f64, hi: f64) -> ScanInput {
+    let keep: Vec<usize> = (0..input.len())
+        .filter(|&i| input.phi[i] >= lo && input.phi[i] <= hi)
+        .collect();
+    ScanInput {
+        phi: keep.iter().map(|&i| input.phi[i]).collect(),
+        rho: keep.iter().map(|&i| input.rho[i]).collect(),
+        sigma: keep.iter().map(|&i| input.sigma[i]).collect(),
+        beam: keep.iter().map(|&i| input.beam[i]).collect(),
+    }
+}
+
+/// What the inference found, in three lines.
+fn print_solution(
+    name: &str,
+    prior: &slam_priors::Prior,
+    solution: &Solution,
+    readings: usize,
+    elapsed: std::time::Duration,
+) {
+    println!(
+        "{name}: {readings} readings, prior {:?}: {} in {:.2?} ({} inner optimizations), \
+         largest violation {:.1e}",
         prior.name,
         if solution.feasible {
             "feasible"
@@ -216,9 +256,9 @@ pub fn run(args: &PriorArgs) -> Result<()> {
     );
     println!(
         "{} regions on {} surfaces, {} outliers; fit cost {:.1}, objective {:.1}",
-        regions.len(),
-        surfaces.len(),
-        outliers.len(),
+        solution.regions().len(),
+        solution.surfaces().len(),
+        solution.outliers().len(),
         solution.fit_cost,
         solution.objective
     );
@@ -228,65 +268,71 @@ pub fn run(args: &PriorArgs) -> Result<()> {
         .map(|&i| (solution.rho[i] - solution.measured[i]).abs())
         .fold(0.0, f64::max);
     println!("largest range correction {:.4} m", moved);
-    if args.dof {
-        if solution.feasible {
-            let dof = analyze(&prior, &solution)?;
-            println!(
-                "degrees of freedom: free {}, extrinsic {}, intrinsic {} ({} constraints)",
-                dof.free_dim(),
-                dof.extrinsic_dim(),
-                dof.intrinsic_dim(),
-                dof.constraints
-            );
-            let sd = dof.range_std();
-            let before = dof.members.iter().map(|&i| solution.sigma[i]).sum::<f64>()
-                / sd.len().max(1) as f64;
-            let after = sd.iter().sum::<f64>() / sd.len().max(1) as f64;
-            println!(
-                "mean range standard deviation: {before:.4} m before, {after:.4} m after; \
-                 largest eigen-variations (sd): {}",
-                dof.variations
-                    .iter()
-                    .take(5)
-                    .map(|(s, _)| format!("{s:.4}"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            );
-        } else {
-            println!("degrees of freedom: not computed (the solution is not feasible)");
-        }
-    }
+}
 
-    let mut figure = Figure::new(
-        format!("{}: {} (sensor frame)", input.name, prior.name),
-        1400,
-    );
-    if let Some(scene) = &input.scene {
-        for shape in &scene.shapes {
-            match *shape {
-                Shape::Segment { a, b } => figure.segment(
-                    Vector2::new(a[0], a[1]),
-                    Vector2::new(b[0], b[1]),
-                    palette::TRUTH,
-                    2,
-                ),
-                Shape::Circle { centre, radius } => figure.circle(
-                    Vector2::new(centre[0], centre[1]),
-                    radius,
-                    palette::TRUTH,
-                    false,
-                ),
-            }
-        }
-        figure.legend("true surfaces", palette::TRUTH);
+/// `--dof`: the degrees of freedom and the posterior range deviations.
+fn print_degrees_of_freedom(prior: &slam_priors::Prior, solution: &Solution) -> Result<()> {
+    if !solution.feasible {
+        println!("degrees of freedom: not computed (the solution is not feasible)");
+        return Ok(());
     }
-    let point = |i: usize, rho: f64| {
-        let (s, c) = solution.phi[i].sin_cos();
-        Vector2::new(rho * c, rho * s)
-    };
+    let dof = analyze(prior, solution)?;
+    println!(
+        "degrees of freedom: free {}, extrinsic {}, intrinsic {} ({} constraints)",
+        dof.free_dim(),
+        dof.extrinsic_dim(),
+        dof.intrinsic_dim(),
+        dof.constraints
+    );
+    let sd = dof.range_std();
+    let before =
+        dof.members.iter().map(|&i| solution.sigma[i]).sum::<f64>() / sd.len().max(1) as f64;
+    let after = sd.iter().sum::<f64>() / sd.len().max(1) as f64;
+    println!(
+        "mean range standard deviation: {before:.4} m before, {after:.4} m after; largest \
+         eigen-variations (sd): {}",
+        dof.variations
+            .iter()
+            .take(5)
+            .map(|(s, _)| format!("{s:.4}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    Ok(())
+}
+
+/// The true surfaces of a built-in scene.
+fn draw_scene(figure: &mut Figure, scene: &Scene) {
+    for shape in &scene.shapes {
+        match *shape {
+            Shape::Segment { a, b } => figure.segment(
+                Vector2::new(a[0], a[1]),
+                Vector2::new(b[0], b[1]),
+                palette::TRUTH,
+                2,
+            ),
+            Shape::Circle { centre, radius } => figure.circle(
+                Vector2::new(centre[0], centre[1]),
+                radius,
+                palette::TRUTH,
+                false,
+            ),
+        }
+    }
+    figure.legend("true surfaces", palette::TRUTH);
+}
+
+/// Reading `i` at range `rho` in the sensor frame.
+fn reading(solution: &Solution, i: usize, rho: f64) -> Vector2<f64> {
+    let (s, c) = solution.phi[i].sin_cos();
+    Vector2::new(rho * c, rho * s)
+}
+
+/// The measured readings, the corrected ones (one colour per region) and their normals.
+fn draw_readings(figure: &mut Figure, solution: &Solution) {
     figure.dots(
         (0..solution.phi.len())
-            .map(|i| point(i, solution.measured[i]))
+            .map(|i| reading(solution, i, solution.measured[i]))
             .collect(),
         palette::POINTS,
         3,
@@ -298,9 +344,13 @@ pub fn run(args: &PriorArgs) -> Result<()> {
         RGBColor(160, 40, 160),
         RGBColor(0, 140, 160),
     ];
+    let regions = solution.regions();
     for (k, region) in regions.iter().enumerate() {
         let colour = colours[k % colours.len()];
-        let points: Vec<_> = region.iter().map(|&i| point(i, solution.rho[i])).collect();
+        let points: Vec<_> = region
+            .iter()
+            .map(|&i| reading(solution, i, solution.rho[i]))
+            .collect();
         figure.polyline(points.clone(), colour, 2);
         figure.dots(points, colour, 2);
     }
@@ -317,22 +367,26 @@ pub fn run(args: &PriorArgs) -> Result<()> {
         if k % stride != 0 {
             continue;
         }
-        let p = point(i, solution.rho[i]);
+        let p = reading(solution, i, solution.rho[i]);
         let n = Vector2::new(solution.alpha[i].cos(), solution.alpha[i].sin());
         figure.segment(p, p + 0.12 * n, palette::CORNER, 1);
     }
     figure.legend("corrected normals", palette::CORNER);
+}
+
+/// Region and surface boundaries (both readings of a link marked) and the outliers.
+fn draw_boundaries(figure: &mut Figure, solution: &Solution) {
     let mut region_marks = 0;
     let mut surface_marks = 0;
     for link in &solution.links {
         if link.topology == Topology::SameRegion {
             continue;
         }
-        // Mark both readings of the link: hollow for a region boundary, filled for a
-        // surface boundary.
+        // Hollow for a region boundary, filled for a surface boundary.
         let surface = link.topology == Topology::DifferentSurface;
         for i in [link.from, link.to] {
-            figure.marker(point(i, solution.rho[i]), RGBColor(0, 0, 0), 10, surface);
+            let at = reading(solution, i, solution.rho[i]);
+            figure.marker(at, RGBColor(0, 0, 0), 10, surface);
         }
         if surface {
             surface_marks += 1;
@@ -347,37 +401,36 @@ pub fn run(args: &PriorArgs) -> Result<()> {
         ),
         RGBColor(0, 0, 0),
     );
+    let outliers = solution.outliers();
     for &i in &outliers {
-        figure.marker(point(i, solution.measured[i]), palette::PATH, 9, true);
+        let at = reading(solution, i, solution.measured[i]);
+        figure.marker(at, palette::PATH, 9, true);
     }
     figure.legend(
         format!("{} outliers (out of INMODEL)", outliers.len()),
         palette::PATH,
     );
-    if args.walls {
-        let walls = solution.straight_regions(5, 1e-4);
-        for w in &walls {
-            let (a, b) = (
-                Vector2::new(w.ends[0][0], w.ends[0][1]),
-                Vector2::new(w.ends[1][0], w.ends[1][1]),
-            );
-            figure.segment(a, b, palette::WALL, 5);
-            println!(
-                "wall: readings {}-{} ({} points), normal {:.4} rad, distance {:.3} m, ends \
-                 ({:.3}, {:.3}) ({:.3}, {:.3})",
-                w.readings.0, w.readings.1, w.points, w.normal, w.distance, a.x, a.y, b.x, b.y
-            );
-        }
-        figure.legend(
-            format!("{} straight regions as wall segments", walls.len()),
-            palette::WALL,
+}
+
+/// `--walls`: the straight regions as wall segments, drawn and printed.
+fn draw_walls(figure: &mut Figure, solution: &Solution) {
+    let walls = solution.straight_regions(5, 1e-4);
+    for w in &walls {
+        let (a, b) = (
+            Vector2::new(w.ends[0][0], w.ends[0][1]),
+            Vector2::new(w.ends[1][0], w.ends[1][1]),
+        );
+        figure.segment(a, b, palette::WALL, 5);
+        println!(
+            "wall: readings {}-{} ({} points), normal {:.4} rad, distance {:.3} m, ends \
+             ({:.3}, {:.3}) ({:.3}, {:.3})",
+            w.readings.0, w.readings.1, w.points, w.normal, w.distance, a.x, a.y, b.x, b.y
         );
     }
-    figure.marker(Vector2::zeros(), palette::TRUE_PATH, 14, true);
-    figure.legend("sensor", palette::TRUE_PATH);
-    figure.save(&args.out)?;
-    println!("image: {}", args.out.display());
-    Ok(())
+    figure.legend(
+        format!("{} straight regions as wall segments", walls.len()),
+        palette::WALL,
+    );
 }
 
 #[cfg(test)]

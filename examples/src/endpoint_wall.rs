@@ -246,6 +246,17 @@ impl Default for EndpointWalls {
 
 #[typetag::serde(name = "endpoints")]
 impl slam_runtime::frontend::WallModel for EndpointWalls {
+    fn validate(&self) -> Result<()> {
+        if self.sigma_along_wall.is_finite() && self.sigma_along_wall > 0.0 {
+            Ok(())
+        } else {
+            Err(Error::InvalidArgument(format!(
+                "sigma_along_wall must be positive, got {}",
+                self.sigma_along_wall
+            )))
+        }
+    }
+
     fn observation(
         &self,
         segment: &slam_sensors::extract::ExtractedSegment,

@@ -14,7 +14,7 @@
 //! - [`Session`]: an estimator and a front-end stepping through events, with
 //!   [`Observer`]s; [`Recorder`] keeps the standard record.
 //! - [`run()`]: a whole run from a config; [`eval`]: ATE, RPE, NEES / NIS and map error, and
-//!   [`eval::RunMetrics`] (`metrics.json`).
+//!   [`RunMetrics`] (`metrics.json`).
 //! - [`postprocess`]: stages after the estimator (EM polygonal approximation).
 //!
 //! ```no_run
@@ -34,6 +34,7 @@ mod error;
 mod estimators;
 pub mod eval;
 pub mod frontend;
+mod metrics;
 pub mod postprocess;
 mod record;
 mod run;
@@ -42,13 +43,14 @@ mod session;
 pub use config::{Config, OutputConfig};
 pub use error::{Result, RuntimeError};
 pub use estimators::{EstimatorConfig, Start};
-pub use eval::RunMetrics;
 pub use frontend::{Frontend, FrontendConfig, load_prior};
-pub use postprocess::{PostProcess, PostProcessConfig, PostProcessOutput};
+pub use metrics::{LaserOdometryReportView, RunMetrics};
+pub use postprocess::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
 pub use record::{Recorder, UpdateTotals};
 pub use run::{RunOutput, run};
 pub use session::{Observer, Session};
 
-/// Re-exported so that a crate registering its own estimator, front-end or stage can use
-/// `#[slam_runtime::typetag::serde]` without a dependency of its own.
+/// Re-exported so that a crate registering its own estimator, front-end or stage uses the
+/// same version: with `use slam_runtime::typetag;` in scope, `#[typetag::serde(name = "...")]`
+/// works without a dependency of its own (the macro's expansion names `typetag`).
 pub use typetag;

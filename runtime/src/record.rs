@@ -4,11 +4,13 @@
 
 use serde::Serialize;
 use slam_core::nalgebra::{Matrix3, Vector2};
+use std::collections::BTreeMap;
+
 use slam_core::{Estimator, Pose2, Skips, UpdateReport};
 use slam_sensors::{Event, TimedEvent, TruthKind};
 
 use crate::error::Result;
-use crate::eval::{ChiSquareAccumulator, Record};
+use crate::eval::{ChiSquareAccumulator, Record, TrajectoryErrors, path_errors, stamped};
 use crate::session::Observer;
 
 /// Totals of the estimator's update reports.
@@ -74,5 +76,24 @@ impl Observer for Recorder {
             covariance: Matrix3::from_fn(|i, j| c[(i, j)]),
         });
         Ok(())
+    }
+}
+
+impl Recorder {
+    /// The independent true poses of the run, by the bits of their time.
+    pub fn true_poses(&self) -> BTreeMap<u64, Pose2> {
+        crate::eval::true_poses(&self.truth)
+    }
+
+    /// ATE of `path` (a map path, or any poses of the run's times) against the run's truth.
+    pub fn path_errors(&self, path: &[(f64, Pose2)]) -> Result<Option<TrajectoryErrors>> {
+        path_errors(&self.truth, &self.gps, &stamped(path.iter().copied()))
+    }
+
+    /// ATE of the recorded estimates against the run's truth (true poses, else reference
+    /// poses, else GPS fixes).
+    pub fn trajectory_errors(&self) -> Result<Option<TrajectoryErrors>> {
+        let estimates = stamped(self.estimates.iter().map(|r| (r.time, r.pose)));
+        path_errors(&self.truth, &self.gps, &estimates)
     }
 }

@@ -97,10 +97,11 @@ pub fn run(config: &Config, observer: &mut dyn Observer) -> Result<RunOutput> {
         estimator: estimator.as_ref(),
         map_path: map_path.as_deref(),
     };
-    let postprocess = stages
+    let mut postprocess = stages
         .into_iter()
         .map(|stage| stage.finish(&finished))
         .collect::<Result<Vec<_>>>()?;
+    distinct_names(&mut postprocess);
     Ok(RunOutput {
         name,
         estimator,
@@ -176,5 +177,19 @@ fn map_path(
             record.estimates.len()
         ))),
         None => Ok(None),
+    }
+}
+
+/// Stages of the same name get `-2`, `-3`, ... appended in their order, so that their
+/// outputs do not overwrite each other.
+fn distinct_names(outputs: &mut [PostProcessOutput]) {
+    for k in 1..outputs.len() {
+        let (before, rest) = outputs.split_at_mut(k);
+        let name = rest[0].name.clone();
+        let mut n = 1;
+        while before.iter().any(|o| o.name == rest[0].name) {
+            n += 1;
+            rest[0].name = format!("{name}-{n}");
+        }
     }
 }

@@ -56,8 +56,9 @@ pub use shape::{Ink, Mark, Shape, Sketch, line_distance, segment_distance};
 pub use stats::{chi2_cdf, chi2_quantile};
 pub use transform::{MapToSensor, SensorFrameCoordinates};
 
-/// Re-exported so that feature implementations outside this crate can use
-/// `#[slam_core::typetag::serde]` without their own dependency.
+/// Re-exported so that feature implementations outside this crate use the same version: with
+/// `use slam_core::typetag;` in scope, `#[typetag::serde]` works without a dependency of their
+/// own (the macro's expansion names `typetag`).
 pub use typetag;
 
 /// Re-exported for `dyn_clone::clone_box` on `dyn Feature`.

@@ -24,8 +24,9 @@ impl<P: RobotPose> Ekf<P> {
         let rows = self
             .rows
             .get(&RowOwner::Feature(id))
-            .map(|r| r[old_dim..].to_vec())
-            .unwrap_or_default();
+            .and_then(|r| r.get(old_dim..))
+            .map(<[usize]>::to_vec)
+            .ok_or_else(|| Error::Invariant(format!("feature {} grew without rows", id.0)))?;
         let added = rows.len();
         let c_now = slam_core::Estimator::pose_covariance(self);
         let mut pairings = Vec::new();

@@ -136,47 +136,15 @@ pub(crate) fn emsf_step(
     let (lo, hi) = bounds(points, segments);
     let grid = SegmentGrid::new(segments, lo, hi);
     let references: Vec<Vector2<f64>> = segments.iter().map(|s| (s.start + s.end) / 2.0).collect();
-    let extra_sq = (CUTOFF * sigma).powi(2);
-    let two_sigma_sq = 2.0 * sigma * sigma;
-    let outlier_sq = outlier_sigmas.map_or(f64::INFINITY, |o| (o * sigma).powi(2));
+    let scales = Scales {
+        extra_sq: (CUTOFF * sigma).powi(2),
+        two_sigma_sq: 2.0 * sigma * sigma,
+        outlier_sq: outlier_sigmas.map_or(f64::INFINITY, |o| (o * sigma).powi(2)),
+    };
     // E-step and the M-step's sums, chunk by chunk.
     let parts: Vec<(Vec<u32>, Vec<f64>, Vec<Moments>)> = points
         .par_chunks(CHUNK)
-        .map(|chunk| {
-            let mut seen = vec![u32::MAX; n];
-            let mut out = Vec::new();
-            let mut weights = Vec::new();
-            let mut moments = vec![Moments::default(); n];
-            let mut owner = Vec::with_capacity(chunk.len());
-            let mut distance = Vec::with_capacity(chunk.len());
-            for (k, p) in chunk.iter().enumerate() {
-                let Some((best, d_min)) =
-                    grid.candidates(segments, p, extra_sq, &mut seen, k as u32, &mut out)
-                else {
-                    owner.push(u32::MAX);
-                    distance.push(f64::INFINITY);
-                    continue;
-                };
-                distance.push(d_min.sqrt());
-                owner.push(best);
-                if d_min > outlier_sq {
-                    // Unexplained by the model: in the support set, but no weight.
-                    continue;
-                }
-                // Weights relative to the nearest segment's (which is 1), then normalized.
-                weights.clear();
-                weights.extend(
-                    out.iter()
-                        .map(|&(_, d)| (-(d - d_min) / two_sigma_sq).exp()),
-                );
-                let total: f64 = weights.iter().sum();
-                for (&(j, _), w) in out.iter().zip(&weights) {
-                    let j = j as usize;
-                    moments[j].add(w / total, p - references[j]);
-                }
-            }
-            (owner, distance, moments)
-        })
+        .map(|chunk| e_step(chunk, segments, &grid, &references, &scales))
         .collect();
     let mut assignment = Assignment::default();
     let mut moments = vec![Moments::default(); n];
@@ -195,7 +163,70 @@ pub(crate) fn emsf_step(
         .collect();
     // Trimming to the projection of the support set.
     let spans = support_spans(points, &assignment.owner, &lines);
-    let segments = lines
+    let segments = trimmed(&lines, spans);
+    (segments, assignment)
+}
+
+/// The E-step's scales: the squared candidate margin `(4 sigma)^2`, `2 sigma^2`, and the
+/// squared outlier distance.
+struct Scales {
+    extra_sq: f64,
+    two_sigma_sq: f64,
+    outlier_sq: f64,
+}
+
+/// The E-step over one chunk of points: each point's nearest segment and distance, and the
+/// M-step's weighted moments per segment.
+fn e_step(
+    chunk: &[Vector2<f64>],
+    segments: &[Segment],
+    grid: &SegmentGrid,
+    references: &[Vector2<f64>],
+    scales: &Scales,
+) -> (Vec<u32>, Vec<f64>, Vec<Moments>) {
+    let n = segments.len();
+    let mut seen = vec![u32::MAX; n];
+    let mut out = Vec::new();
+    let mut weights = Vec::new();
+    let mut moments = vec![Moments::default(); n];
+    let mut owner = Vec::with_capacity(chunk.len());
+    let mut distance = Vec::with_capacity(chunk.len());
+    for (k, p) in chunk.iter().enumerate() {
+        let Some((best, d_min)) =
+            grid.candidates(segments, p, scales.extra_sq, &mut seen, k as u32, &mut out)
+        else {
+            owner.push(u32::MAX);
+            distance.push(f64::INFINITY);
+            continue;
+        };
+        distance.push(d_min.sqrt());
+        owner.push(best);
+        if d_min > scales.outlier_sq {
+            // Unexplained by the model: in the support set, but no weight.
+            continue;
+        }
+        // Weights relative to the nearest segment's (which is 1), then normalized.
+        weights.clear();
+        weights.extend(
+            out.iter()
+                .map(|&(_, d)| (-(d - d_min) / scales.two_sigma_sq).exp()),
+        );
+        let total: f64 = weights.iter().sum();
+        for (&(j, _), w) in out.iter().zip(&weights) {
+            let j = j as usize;
+            moments[j].add(w / total, p - references[j]);
+        }
+    }
+    (owner, distance, moments)
+}
+
+/// The segments of the regression lines cut to their support spans `(t0, t1, count)`; lines
+/// without a line, with fewer than two supporting points or an empty span are dropped.
+fn trimmed(
+    lines: &[Option<(Vector2<f64>, Vector2<f64>)>],
+    spans: Vec<(f64, f64, usize)>,
+) -> Vec<Segment> {
+    lines
         .iter()
         .zip(spans)
         .filter_map(|(line, span)| {
@@ -208,8 +239,7 @@ pub(crate) fn emsf_step(
             };
             (count >= 2 && t1 - t0 > 0.0 && segment.is_finite()).then_some(segment)
         })
-        .collect();
-    (segments, assignment)
+        .collect()
 }
 
 /// The line of weighted orthogonal regression: `(weighted mean, unit direction)`, `None` for

@@ -410,20 +410,32 @@ pub fn fit_polygons_from(
         result.converged = true;
         return Ok(result);
     }
+    let iterated = iterate(points, initial, params, &mut result);
+    let (segments, polylines) = finish(points, iterated, params);
+    result.polylines = polylines;
+    summarize(points, segments, &mut result);
+    Ok(result)
+}
+
+/// Where the iterations ended: the segments, the last split scale `r` and deviation.
+struct Iterated {
+    segments: Vec<Segment>,
+    r: f64,
+    sigma: f64,
+}
+
+/// The iterations of EMSF, split, EMSF and merge until the mean distance stops changing
+/// (outside annealing) or `max_iterations`; their statistics go to `result`.
+fn iterate(
+    points: &[Vector2<f64>],
+    initial: Vec<Segment>,
+    params: &EmPolygonParams,
+    result: &mut PolygonMap,
+) -> Iterated {
     let mut segments = initial;
     let mut distances = nearest_distances(points, &segments);
     let mut previous_mean: Option<f64> = None;
     let mut r = params.r_min;
-    let angle = params.merge_angle_deg.to_radians();
-    // The support threshold C of the split.
-    let threshold = |supports: &[usize]| {
-        let positive: Vec<f64> = supports
-            .iter()
-            .filter(|&&s| s > 0)
-            .map(|&s| s as f64)
-            .collect();
-        (params.support_fraction * median(&positive).unwrap_or(0.0)).max(params.min_support)
-    };
     let mut previous_sigma = f64::INFINITY;
     let mut last_sigma = params.sigma_min;
     for _ in 0..params.max_iterations {
@@ -433,45 +445,12 @@ pub fn fit_polygons_from(
         let annealing = sigma < previous_sigma * (1.0 - 1e-9) && previous_sigma.is_finite();
         previous_sigma = sigma;
         last_sigma = sigma;
-        // 1) EMSF.
-        segments = emsf::emsf_step(points, &segments, sigma, params.outlier_sigmas).0;
-        // The split scale: from the deviation, and long enough that a subsegment holds
-        // `subsegment_points` points at the mean density along the segments.
-        let length: f64 = segments.iter().map(Segment::length).sum();
-        let support: usize = segments.iter().map(|s| s.support).sum();
-        let spacing = if support > 0 {
-            length / support as f64
-        } else {
-            0.0
-        };
-        r = (params.split_scale * sigma)
-            .max(0.5 * params.subsegment_points * spacing)
-            .clamp(params.r_min, params.r_max);
-        // 2) LSS.
-        let (split, report) = split::split(points, &segments, r, threshold);
-        let after_split = split.len();
-        // 3) EMSF.
-        segments = emsf::emsf_step(points, &split, sigma, params.outlier_sigmas).0;
-        // 4) Merge.
-        let scales = merge::MergeScales {
-            angle,
-            sigma: params.sigma_min,
-            r,
-        };
-        let (merged, merges) = merge::merge_all(segments, &scales);
-        segments = merged;
-        distances = nearest_distances(points, &segments);
-        let mean_distance = mean(&distances).unwrap_or(f64::INFINITY);
-        result.iterations.push(IterationStats {
-            sigma,
-            r,
-            support_threshold: report.threshold,
-            subsegments: (report.subsegments, report.removed),
-            after_split,
-            merges,
-            segments: segments.len(),
-            mean_distance,
-        });
+        let (next, stats, next_distances) = iteration(points, &segments, sigma, params);
+        segments = next;
+        distances = next_distances;
+        r = stats.r;
+        let mean_distance = stats.mean_distance;
+        result.iterations.push(stats);
         if segments.is_empty() {
             break;
         }
@@ -484,13 +463,86 @@ pub fn fit_polygons_from(
         }
         previous_mean = Some(mean_distance);
     }
+    Iterated {
+        segments,
+        r,
+        sigma: last_sigma,
+    }
+}
+
+/// One iteration at deviation `sigma`: 1) EMSF, 2) the line-segment split at a scale from
+/// the deviation and the density of points, 3) EMSF, 4) merge. Returns the segments, the
+/// iteration's statistics and every point's distance to its nearest segment.
+fn iteration(
+    points: &[Vector2<f64>],
+    segments: &[Segment],
+    sigma: f64,
+    params: &EmPolygonParams,
+) -> (Vec<Segment>, IterationStats, Vec<f64>) {
+    let segments = emsf::emsf_step(points, segments, sigma, params.outlier_sigmas).0;
+    // The split scale: from the deviation, and long enough that a subsegment holds
+    // `subsegment_points` points at the mean density along the segments.
+    let length: f64 = segments.iter().map(Segment::length).sum();
+    let support: usize = segments.iter().map(|s| s.support).sum();
+    let spacing = if support > 0 {
+        length / support as f64
+    } else {
+        0.0
+    };
+    let r = (params.split_scale * sigma)
+        .max(0.5 * params.subsegment_points * spacing)
+        .clamp(params.r_min, params.r_max);
+    let (split, report) = split::split(points, &segments, r, |supports| {
+        support_threshold(supports, params)
+    });
+    let after_split = split.len();
+    let segments = emsf::emsf_step(points, &split, sigma, params.outlier_sigmas).0;
+    let scales = merge::MergeScales {
+        angle: params.merge_angle_deg.to_radians(),
+        sigma: params.sigma_min,
+        r,
+    };
+    let (segments, merges) = merge::merge_all(segments, &scales);
+    let distances = nearest_distances(points, &segments);
+    let stats = IterationStats {
+        sigma,
+        r,
+        support_threshold: report.threshold,
+        subsegments: (report.subsegments, report.removed),
+        after_split,
+        merges,
+        segments: segments.len(),
+        mean_distance: mean(&distances).unwrap_or(f64::INFINITY),
+    };
+    (segments, stats, distances)
+}
+
+/// The support threshold `C` of the split: a fraction of the median positive subsegment
+/// support, at least `min_support`.
+fn support_threshold(supports: &[usize], params: &EmPolygonParams) -> f64 {
+    let positive: Vec<f64> = supports
+        .iter()
+        .filter(|&&s| s > 0)
+        .map(|&s| s as f64)
+        .collect();
+    (params.support_fraction * median(&positive).unwrap_or(0.0)).max(params.min_support)
+}
+
+/// After the iterations: lines pulled off their wall by far points put back, empty
+/// stretches removed, ends joined into polylines (dropping segments the joins collapse).
+fn finish(
+    points: &[Vector2<f64>],
+    iterated: Iterated,
+    params: &EmPolygonParams,
+) -> (Vec<Segment>, Vec<Polyline>) {
     // The last EMSF trims each segment to all of its support set, which can stretch it over
     // a gap to a few stray points: a last split removes the subsegments whose square holds
     // no point at all.
     // First a last EMSF whose M-step ignores points farther than 3 sigma, so that lines
     // pulled off their wall by far points lie on it again.
-    segments = emsf::emsf_step(points, &segments, last_sigma, Some(3.0)).0;
-    segments = split::split(points, &segments, r, |_| 0.0).0;
+    let Iterated { segments, r, sigma } = iterated;
+    let segments = emsf::emsf_step(points, &segments, sigma, Some(3.0)).0;
+    let mut segments = split::split(points, &segments, r, |_| 0.0).0;
     // Joining ends can collapse a short segment between two joints: such segments are
     // dropped and the ordering redone.
     let join = params.join_scale * r;
@@ -503,9 +555,7 @@ pub fn fit_polygons_from(
             .map(|(j, s)| j.length() < (0.25 * s.length()).max(MIN_LENGTH))
             .collect();
         if !collapsed.contains(&true) {
-            segments = joined;
-            result.polylines = polylines;
-            break;
+            return (joined, polylines);
         }
         segments = segments
             .into_iter()
@@ -513,6 +563,10 @@ pub fn fit_polygons_from(
             .filter_map(|(s, c)| (!c).then_some(s))
             .collect();
     }
+}
+
+/// The segments' supports and the points' distance statistics into `result`.
+fn summarize(points: &[Vector2<f64>], mut segments: Vec<Segment>, result: &mut PolygonMap) {
     let assignment = emsf::assign(points, &segments);
     for s in &mut segments {
         s.support = 0;
@@ -528,7 +582,6 @@ pub fn fit_polygons_from(
     result.compression_ratio =
         (!segments.is_empty()).then(|| points.len() as f64 / (2 * segments.len()) as f64);
     result.segments = segments;
-    Ok(result)
 }
 
 /// A segment from `a` to `b` given as `(x, y)` pairs, for the tests of the submodules.

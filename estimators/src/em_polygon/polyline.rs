@@ -32,8 +32,32 @@ fn intersection(a: &Segment, b: &Segment) -> Option<Vector2<f64>> {
 /// Orders `segments` into polylines joining ends within `join` of each other, and moves the
 /// joined ends onto their common vertex. Every segment belongs to exactly one polyline.
 pub(crate) fn order(segments: &mut [Segment], join: f64) -> Vec<Polyline> {
+    let partner = partners(segments, join);
+    move_to_vertices(segments, &partner, join);
+    // Walk the chains: first from free ends (open polylines), then the remaining cycles.
     let n = segments.len();
-    // Candidate end pairs of different segments, nearest first (sweep along x).
+    let mut visited = vec![false; n];
+    let mut polylines = Vec::new();
+    for s in 0..n {
+        for end in [2 * s, 2 * s + 1] {
+            if !visited[s] && partner[end] == usize::MAX {
+                polylines.push(walk(segments, &partner, end, &mut visited));
+            }
+        }
+    }
+    for s in 0..n {
+        if !visited[s] {
+            polylines.push(walk(segments, &partner, 2 * s, &mut visited));
+        }
+    }
+    polylines
+}
+
+/// The end each end (`2 s` start, `2 s + 1` end of segment `s`) is joined to, `usize::MAX`
+/// for a free end: pairs of ends of different segments within `join`, nearest first (a sweep
+/// along x finds the candidates).
+fn partners(segments: &[Segment], join: f64) -> Vec<usize> {
+    let n = segments.len();
     let mut ends: Vec<usize> = (0..2 * n).collect();
     ends.sort_by(|&a, &b| {
         end_point(segments, a)
@@ -63,9 +87,14 @@ pub(crate) fn order(segments: &mut [Segment], join: f64) -> Vec<Polyline> {
             partner[b] = a;
         }
     }
-    // The common vertex of each joined pair.
-    let mut vertex = vec![None; 2 * n];
-    for a in 0..2 * n {
+    partner
+}
+
+/// Moves each joined pair of ends onto their common vertex: the lines' intersection when it
+/// lies within `join` of both, else their midpoint.
+fn move_to_vertices(segments: &mut [Segment], partner: &[usize], join: f64) {
+    let mut vertex = vec![None; partner.len()];
+    for a in 0..partner.len() {
         let b = partner[a];
         if b == usize::MAX || b < a {
             continue;
@@ -88,48 +117,39 @@ pub(crate) fn order(segments: &mut [Segment], join: f64) -> Vec<Polyline> {
             }
         }
     }
-    // Walk the chains: first from free ends (open polylines), then the remaining cycles.
-    let mut visited = vec![false; n];
-    let mut polylines = Vec::new();
-    let walk = |first_end: usize, visited: &mut Vec<bool>| -> Polyline {
-        // Enter segment first_end / 2 through end first_end.
-        let mut order = Vec::new();
-        let mut vertices = vec![end_point(segments, first_end)];
-        let mut end = first_end;
-        loop {
-            let s = end / 2;
-            visited[s] = true;
-            let exit = end ^ 1;
-            order.push((s, end % 2 == 1));
-            vertices.push(end_point(segments, exit));
-            let next = partner[exit];
-            if next == usize::MAX || visited[next / 2] {
-                let closed = next != usize::MAX && next == first_end;
-                if closed {
-                    vertices.pop();
-                }
-                return Polyline {
-                    segments: order,
-                    vertices,
-                    closed,
-                };
+}
+
+/// The polyline entered through end `first_end` (of segment `first_end / 2`), following the
+/// joins until a free end or back to the start (a closed polyline).
+fn walk(
+    segments: &[Segment],
+    partner: &[usize],
+    first_end: usize,
+    visited: &mut [bool],
+) -> Polyline {
+    let mut order = Vec::new();
+    let mut vertices = vec![end_point(segments, first_end)];
+    let mut end = first_end;
+    loop {
+        let s = end / 2;
+        visited[s] = true;
+        let exit = end ^ 1;
+        order.push((s, end % 2 == 1));
+        vertices.push(end_point(segments, exit));
+        let next = partner[exit];
+        if next == usize::MAX || visited[next / 2] {
+            let closed = next != usize::MAX && next == first_end;
+            if closed {
+                vertices.pop();
             }
-            end = next;
+            return Polyline {
+                segments: order,
+                vertices,
+                closed,
+            };
         }
-    };
-    for s in 0..n {
-        for end in [2 * s, 2 * s + 1] {
-            if !visited[s] && partner[end] == usize::MAX {
-                polylines.push(walk(end, &mut visited));
-            }
-        }
+        end = next;
     }
-    for s in 0..n {
-        if !visited[s] {
-            polylines.push(walk(2 * s, &mut visited));
-        }
-    }
-    polylines
 }
 
 #[cfg(test)]

@@ -29,7 +29,7 @@ mod landmark;
 mod proposal;
 mod step;
 
-use std::sync::{Arc, OnceLock};
+use std::sync::OnceLock;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -359,21 +359,6 @@ impl<P: RobotPose> Estimator<P> for FastSlam<P> {
     fn map_path(&self) -> Option<Vec<P>> {
         Some(self.set.best_particle().path.to_vec())
     }
-}
-
-/// The shared measurement of each observation that triangulates, kept as a view by every
-/// particle that sees it.
-fn shared_views(
-    observations: &[Observation],
-) -> Vec<Option<Arc<dyn slam_core::DynMeasurementModel>>> {
-    observations
-        .iter()
-        .map(|o| {
-            o.measurement
-                .triangulates_dyn()
-                .then(|| Arc::from(o.measurement.clone_box()))
-        })
-        .collect()
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@ use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{DynMeasurementModel, Observation, Result, RobotPose, UpdateReport};
 
 use super::landmark::{Landmark, LandmarkMap};
-use super::{FastSlamParams, Proposal, shared_views};
+use super::{FastSlamParams, Proposal};
 use crate::association::{
     Candidate, Choice, Gates, associate, candidate_features, sort_by_distance,
 };
@@ -57,6 +57,21 @@ impl<'a> StepContext<'a> {
             self.gates.gate(self.params.new_feature_probability, dof)?,
         ))
     }
+}
+
+/// The shared measurement of each observation that triangulates, kept as a view by every
+/// particle that sees it.
+fn shared_views(
+    observations: &[Observation],
+) -> Vec<Option<Arc<dyn slam_core::DynMeasurementModel>>> {
+    observations
+        .iter()
+        .map(|o| {
+            o.measurement
+                .triangulates_dyn()
+                .then(|| Arc::from(o.measurement.clone_box()))
+        })
+        .collect()
 }
 
 /// The per-particle work of one update step.

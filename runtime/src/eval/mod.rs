@@ -1,23 +1,21 @@
 //! Evaluation anyone can call: trajectory errors (ATE, RPE, [`trajectory`]), consistency
-//! (NEES, NIS, [`ChiSquareSummary`]), map error ([`map_error_against_truth`],
-//! [`map_error_against_landmarks`]) and the metrics of a whole run ([`RunMetrics`], what
-//! `metrics.json` holds).
+//! (NEES, NIS, [`ChiSquareSummary`]) and map error ([`map_error_against_truth`],
+//! [`map_error_against_landmarks`]), as functions of plain data (the metrics of a whole run,
+//! `metrics.json`, are [`crate::RunMetrics`]).
 
 mod consistency;
 mod map;
-mod metrics;
 pub mod trajectory;
 
 use std::collections::BTreeMap;
 
 use serde::Serialize;
 use slam_core::Pose2;
-use slam_core::nalgebra::Vector3;
+use slam_core::nalgebra::{Vector2, Vector3};
 use slam_sensors::TruthKind;
 use slam_sensors::data::StampedPose;
 
 use crate::error::Result;
-use crate::record::Recorder;
 
 pub use consistency::{
     ChiSquareAccumulator, ChiSquareSummary, Record, chi_square_summary, pose_nees,
@@ -26,7 +24,6 @@ pub use map::{
     MapError, confirmed, coordinate_covariance, feature_counts, map_error_against_landmarks,
     map_error_against_truth, shared_dims,
 };
-pub use metrics::RunMetrics;
 pub use trajectory::{AlignMode, Alignment, ErrorStats, associate, ate, umeyama};
 
 /// The trajectory errors of a run against its ground truth (or reference) poses.
@@ -56,30 +53,31 @@ pub fn stamped(poses: impl IntoIterator<Item = (f64, Pose2)>) -> Vec<StampedPose
         .collect()
 }
 
-/// The independent true poses of a run, by the bits of their time.
-pub fn true_poses(record: &Recorder) -> BTreeMap<u64, Pose2> {
-    record
-        .truth
+/// The independent true poses among `truth`, by the bits of their time.
+pub fn true_poses(truth: &[(f64, Pose2, TruthKind)]) -> BTreeMap<u64, Pose2> {
+    truth
         .iter()
         .filter(|(_, _, kind)| *kind == TruthKind::True)
         .map(|(t, p, _)| (t.to_bits(), *p))
         .collect()
 }
 
-/// ATE of `est` against the run's truth poses (`True` preferred, else `Reference`, else GPS
-/// fixes, paired within half a second); `None` when fewer than 3 poses pair.
-pub fn path_errors(record: &Recorder, est: &[StampedPose]) -> Result<Option<TrajectoryErrors>> {
+/// ATE of `est` against a run's truth poses (`True` preferred, else `Reference`, else the
+/// GPS fixes `gps`, paired within half a second); `None` when fewer than 3 poses pair.
+pub fn path_errors(
+    truth: &[(f64, Pose2, TruthKind)],
+    gps: &[(f64, Vector2<f64>)],
+    est: &[StampedPose],
+) -> Result<Option<TrajectoryErrors>> {
     let of_kind = |kind: TruthKind| -> Vec<StampedPose> {
         stamped(
-            record
-                .truth
+            truth
                 .iter()
                 .filter(|(_, _, k)| *k == kind)
                 .map(|(t, p, _)| (*t, *p)),
         )
     };
-    let gps: Vec<StampedPose> = record
-        .gps
+    let gps: Vec<StampedPose> = gps
         .iter()
         .map(|(t, p)| StampedPose {
             time: *t,
@@ -109,10 +107,4 @@ pub fn path_errors(record: &Recorder, est: &[StampedPose]) -> Result<Option<Traj
         against,
         alignment: aligned.alignment,
     }))
-}
-
-/// ATE of the recorded estimates against the run's truth poses.
-pub fn trajectory_errors(record: &Recorder) -> Result<Option<TrajectoryErrors>> {
-    let est = stamped(record.estimates.iter().map(|r| (r.time, r.pose)));
-    path_errors(record, &est)
 }

@@ -173,6 +173,9 @@ impl FrontendConfig for FeaturesFrontendConfig {
     /// a malformed prior file or engine settings out of range are errors before the data
     /// are read.
     fn validate(&self) -> Result<()> {
+        self.wall_representation
+            .validate()
+            .map_err(|e| RuntimeError::setting("frontend.wall_representation", e.to_string()))?;
         if self.walls && self.wall_segmentation == WallSegmentation::Prior {
             PriorSegmenter::new(&self.prior)?;
         }

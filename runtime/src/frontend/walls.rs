@@ -12,6 +12,11 @@ use slam_sensors::extract::ExtractedSegment;
 /// A wall representation, registered by name: the observation of one extracted segment.
 #[typetag::serde(tag = "type")]
 pub trait WallModel: Debug + Send + Sync + dyn_clone::DynClone {
+    /// Checks the settings before any data is read (default: nothing to check).
+    fn validate(&self) -> slam_core::Result<()> {
+        Ok(())
+    }
+
     /// The observation of `segment` (sensor frame; its covariance already as the front-end
     /// wants it), for a laser of range deviation `sigma_range`, m.
     fn observation(

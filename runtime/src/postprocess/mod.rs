@@ -74,8 +74,10 @@ pub trait PostProcess: Observer + Send {
 /// A stage's settings, registered by name: what `[[postprocess]] type = "..."` selects.
 #[typetag::serde(tag = "type")]
 pub trait PostProcessConfig: Debug + Send + Sync + dyn_clone::DynClone {
-    /// Checks the settings before any data is read.
-    fn validate(&self) -> Result<()>;
+    /// Checks the settings before any data is read (default: nothing to check).
+    fn validate(&self) -> Result<()> {
+        Ok(())
+    }
 
     /// The stage, ready to watch a session.
     fn build(&self) -> Result<Box<dyn PostProcess>>;

@@ -8,13 +8,12 @@ use slam_core::Skips;
 use slam_sensors::TruthKind;
 use slam_sensors::laser_odometry::LaserOdometryReport;
 
-use super::{
-    ChiSquareSummary, ErrorStats, MapError, TrajectoryErrors, chi_square_summary, feature_counts,
-    map_error_against_landmarks, map_error_against_truth, path_errors, pose_nees, stamped,
-    trajectory_errors, true_poses,
-};
 use crate::config::Config;
 use crate::error::Result;
+use crate::eval::{
+    ChiSquareSummary, ErrorStats, MapError, TrajectoryErrors, chi_square_summary, feature_counts,
+    map_error_against_landmarks, map_error_against_truth, pose_nees,
+};
 use crate::frontend::FrontendCounts;
 use crate::record::UpdateTotals;
 use crate::run::RunOutput;
@@ -101,23 +100,19 @@ impl RunMetrics {
         let record = &output.record;
         let estimator = output.estimator.as_ref();
         let mut unavailable = BTreeMap::new();
-        let trajectory = available(&mut unavailable, "ate", trajectory_errors(record));
+        let trajectory = available(&mut unavailable, "ate", record.trajectory_errors());
         let map_error = available(
             &mut unavailable,
             "map_error",
             Self::map_error(output, trajectory.as_ref()),
         );
-        let nees: Vec<(f64, usize)> = pose_nees(&record.estimates, &true_poses(record))
+        let nees: Vec<(f64, usize)> = pose_nees(&record.estimates, &record.true_poses())
             .into_iter()
             .map(|(_, n)| (n, 3))
             .collect();
         let map_path_ate_rmse_m = match &output.map_path {
-            Some(path) => available(
-                &mut unavailable,
-                "map_path_ate",
-                path_errors(record, &stamped(path.iter().copied())),
-            )
-            .map(|t| t.ate_rmse_m),
+            Some(path) => available(&mut unavailable, "map_path_ate", record.path_errors(path))
+                .map(|t| t.ate_rmse_m),
             None => None,
         };
         let steps = record.estimates.len();

@@ -204,6 +204,24 @@ fn unknown_ids_are_associated_per_particle() {
 }
 
 #[test]
+fn particles_associate_by_jcbb_from_the_settings() {
+    let world = world(60, false, 4);
+    let jcbb = FastSlamParams {
+        association: crate::Association::Jcbb,
+        ..small(20)
+    };
+    let (filter, worst) = run(&world, jcbb);
+    assert!(worst < 0.3, "largest position error {worst}");
+    assert_one_feature_per_seen_landmark(&filter, &world);
+    // (The one-to-one pairing and the joint gate are tested in `association`.)
+    let zero_nodes = FastSlamParams {
+        jcbb_max_nodes: 0,
+        ..small(20)
+    };
+    assert!(zero_nodes.validate().is_err());
+}
+
+#[test]
 fn results_do_not_depend_on_the_thread_count() {
     let world = world(25, false, 5);
     let outcome = |threads: usize| {

@@ -1,10 +1,10 @@
 //! The point: one 3-D point (paper section IV-E), e.g. a ceiling lamp or a landmark.
 
 use serde::{Deserialize, Serialize};
-use slam_core::nalgebra::{DMatrix, Vector3};
+use slam_core::nalgebra::{DMatrix, DVector, Vector3};
 use slam_core::{
-    CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch, Subspace,
-    stack_rows,
+    Coincidence, CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch,
+    Subspace, downcast_feature, stack_rows,
 };
 
 /// x and y of the point.
@@ -141,6 +141,26 @@ impl Feature for Point {
                 position: position.xy(),
             }
         })
+    }
+
+    /// Another point is this point when they coincide: in 3-D when both are placed in
+    /// height, else in the floor plane.
+    fn coincidence(&self, other: &dyn Feature) -> Result<Option<Coincidence>> {
+        let Some(other) = downcast_feature::<Point>(other) else {
+            return Ok(None);
+        };
+        let dims = if self.mspace_dim() >= 3 && other.mspace_dim() >= 3 {
+            3
+        } else {
+            2
+        };
+        let difference = self.position() - other.position();
+        let identity = DMatrix::identity(dims, 3);
+        Ok(Some(Coincidence {
+            residual: DVector::from_column_slice(&difference.as_slice()[..dims]),
+            d_self: identity.clone(),
+            d_other: -identity,
+        }))
     }
 
     fn sketch(&self) -> Sketch {

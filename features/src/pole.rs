@@ -2,9 +2,10 @@
 //! (paper section IV-H).
 
 use serde::{Deserialize, Serialize};
-use slam_core::nalgebra::{DMatrix, Vector2};
+use slam_core::nalgebra::{DMatrix, DVector, Vector2};
 use slam_core::{
-    CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch, Subspace,
+    Coincidence, CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch,
+    Subspace, downcast_feature,
 };
 
 /// Radius and centre, gained together.
@@ -120,6 +121,25 @@ impl Feature for Pole {
             centre: self.centre(),
             radius: self.radius(),
         })
+    }
+
+    /// Another pole is this pole when their centres coincide (the radius is left out: a
+    /// trunk's apparent radius varies with the height the laser cuts it at).
+    fn coincidence(&self, other: &dyn Feature) -> Result<Option<Coincidence>> {
+        let Some(other) = downcast_feature::<Pole>(other) else {
+            return Ok(None);
+        };
+        let centre = |sign: f64| {
+            let mut d = DMatrix::zeros(2, 3);
+            d[(0, 1)] = sign;
+            d[(1, 2)] = sign;
+            d
+        };
+        Ok(Some(Coincidence {
+            residual: DVector::from_column_slice((self.centre() - other.centre()).as_slice()),
+            d_self: centre(1.0),
+            d_other: centre(-1.0),
+        }))
     }
 
     fn sketch(&self) -> Sketch {

@@ -2,10 +2,10 @@
 //! 2-D endpoints (paper section IV-F, Table II, and eq. 33 for walls sharing a corner).
 
 use serde::{Deserialize, Serialize};
-use slam_core::nalgebra::{DMatrix, Vector2};
+use slam_core::nalgebra::{DMatrix, DVector, Matrix2, Vector2};
 use slam_core::{
-    CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch, Subspace,
-    ensure_finite, stack_rows,
+    Coincidence, CoordBlock, Coordinates, Error, Extension, Feature, Growth, Ink, Mark, Result,
+    Shape, Sketch, Subspace, downcast_feature, ensure_finite, stack_rows,
 };
 
 use crate::geometry::Segment2;
@@ -233,6 +233,81 @@ impl Wall {
         self.length_at_join
     }
 
+    /// Whether endpoint `k` (0 start, 1 end) has an estimated tangential position (its
+    /// subspace is active or it is a shared corner).
+    pub fn end_estimated(&self, k: usize) -> bool {
+        let name = if k == 0 { START.name } else { END.name };
+        self.is_shared(k) || self.active.iter().any(|s| s.spec().name == name)
+    }
+
+    /// The wall grown along its line to cover `points` (their projections onto the line), at
+    /// each end whose position is not estimated; `None` when no end moves.
+    ///
+    /// The start moves by `a` and the end by `b` along the unit tangent `t`:
+    /// `s' = s + a t`, `e' = e + b t`, so with `P = I - t t^T` and `L` the length,
+    /// `d s' = d s + a P (d e - d s) / L` and `d e' = d e + b P (d e - d s) / L`: the new ends
+    /// turn with the wall.
+    pub fn extension_over(&self, points: &[Vector2<f64>]) -> Result<Option<Extension>> {
+        let (start, end) = (self.start(), self.end());
+        let (length, t) = (self.length(), self.tangent());
+        let along = points.iter().map(|p| t.dot(&(p - start)));
+        let lo = along.clone().fold(f64::INFINITY, f64::min);
+        let hi = along.fold(f64::NEG_INFINITY, f64::max);
+        let a = if lo < 0.0 && !self.end_estimated(0) {
+            lo
+        } else {
+            0.0
+        };
+        let b = if hi > length && !self.end_estimated(1) {
+            hi - length
+        } else {
+            0.0
+        };
+        if a == 0.0 && b == 0.0 {
+            return Ok(None);
+        }
+        let p = (Matrix2::identity() - t * t.transpose()) / length;
+        let mut d_new_d_old = DMatrix::identity(4, 4);
+        for (row, scale) in [(0, a), (2, b)] {
+            let turn = p * scale;
+            let mut block = d_new_d_old.view_mut((row, 0), (2, 2));
+            block -= turn;
+            let mut block = d_new_d_old.view_mut((row, 2), (2, 2));
+            block += turn;
+        }
+        let coordinates = Coordinates::new(vec![
+            CoordBlock::Point2(start + t * a),
+            CoordBlock::Point2(end + t * b),
+        ])?;
+        Ok(Some(Extension {
+            coordinates,
+            d_new_d_old,
+        }))
+    }
+
+    /// The distances of `points` from this wall's line (positive on the free side), with
+    /// their Jacobian with respect to this wall's coordinates (`n x 4`; with respect to a
+    /// point, a distance's derivative is the normal [`Wall::normal`]).
+    ///
+    /// With `u = e - s`, `L = |u|`, the normal `n = J u / L` (`J` the rotation by +90 deg) and
+    /// `q = p - s`, the distance is `r = n . q`; `dr/du = (q^T J - r t^T) / L`, `dr/dq = n^T`,
+    /// so `dr/ds = -dr/du - n^T` and `dr/de = dr/du`.
+    pub fn line_distances(&self, points: &[Vector2<f64>]) -> (DVector<f64>, DMatrix<f64>) {
+        let (start, length, t, n) = (self.start(), self.length(), self.tangent(), self.normal());
+        let rotate = Matrix2::new(0.0, -1.0, 1.0, 0.0);
+        let mut r = DVector::zeros(points.len());
+        let mut d_wall = DMatrix::zeros(points.len(), 4);
+        for (i, p) in points.iter().enumerate() {
+            let q = p - start;
+            r[i] = n.dot(&q);
+            let d_u = (q.transpose() * rotate - t.transpose() * r[i]) / length;
+            let d_s = -d_u - n.transpose();
+            d_wall.view_mut((i, 0), (1, 2)).copy_from(&d_s);
+            d_wall.view_mut((i, 2), (1, 2)).copy_from(&d_u);
+        }
+        (r, d_wall)
+    }
+
     /// The wall with its M-space grown by the named subspaces, in order (a convenience for
     /// tests and configuration).
     pub fn with_subspaces(mut self, names: &[&str]) -> Result<Self> {
@@ -365,6 +440,37 @@ impl Feature for Wall {
             start: self.start(),
             end: self.end(),
         })
+    }
+
+    /// Another wall facing the same way (within 90 degrees) is this wall when its ends lie
+    /// on this wall's line: the residual is their two distances from it
+    /// ([`Wall::line_distances`]).
+    fn coincidence(&self, other: &dyn Feature) -> Result<Option<Coincidence>> {
+        let Some(other) = downcast_feature::<Wall>(other) else {
+            return Ok(None);
+        };
+        if other.tangent().dot(&self.tangent()) <= 0.0 {
+            return Ok(None);
+        }
+        let ends = [other.start(), other.end()];
+        let (residual, d_self) = self.line_distances(&ends);
+        let n = self.normal().transpose();
+        let mut d_other = DMatrix::zeros(2, 4);
+        d_other.view_mut((0, 0), (1, 2)).copy_from(&n);
+        d_other.view_mut((1, 2), (1, 2)).copy_from(&n);
+        Ok(Some(Coincidence {
+            residual,
+            d_self,
+            d_other,
+        }))
+    }
+
+    /// Grown over the other wall's ends ([`Wall::extension_over`]).
+    fn absorbed(&self, other: &dyn Feature) -> Result<Option<Extension>> {
+        match downcast_feature::<Wall>(other) {
+            Some(other) => self.extension_over(&[other.start(), other.end()]),
+            None => Ok(None),
+        }
     }
 
     /// The segment (strong once an end or a corner is estimated), with a marker and the 95 %

@@ -3,7 +3,7 @@
 
 use proptest::prelude::*;
 use slam_core::nalgebra::{Vector2, Vector3};
-use slam_core::testing::{ConformanceParams, check_feature};
+use slam_core::testing::{ConformanceParams, check_coincidence, check_feature};
 use slam_core::{Feature, test_feature_conformance};
 use slam_features::{HLine, Point, Pole, PpcaLine, Wall};
 
@@ -121,5 +121,37 @@ proptest! {
         prop_assert!(HLine::new(Vector3::new(0.0, 0.0, bad), Vector3::new(1.0, 0.0, 2.0)).is_err());
         prop_assert!(Pole::new(bad, Vector2::new(1.0, 0.0)).is_err());
         prop_assert!(Point::new(Vector3::new(0.0, bad, 0.0)).is_err());
+    }
+
+    #[test]
+    fn wall_coincidence_jacobians(
+        x in coordinate(), y in coordinate(), l in 0.2..20.0f64, a in angle(),
+        dx in -1.0..1.0f64, dy in -1.0..1.0f64, m in 0.2..20.0f64, turn in -0.5..0.5f64,
+    ) {
+        let start = Vector2::new(x, y);
+        let wall = Wall::new(start, start + l * Vector2::new(a.cos(), a.sin())).unwrap();
+        let other_start = start + Vector2::new(dx, dy);
+        let direction = Vector2::new((a + turn).cos(), (a + turn).sin());
+        let other = Wall::new(other_start, other_start + m * direction).unwrap();
+        let checked = check_coincidence(&wall, &other, &ConformanceParams::default())
+            .map_err(|failure| TestCaseError::fail(failure.to_string()))?;
+        prop_assert!(checked, "walls facing the same way must be comparable");
+        let reversed = Wall::new(other.end(), other.start()).unwrap();
+        prop_assert!(wall.coincidence(&reversed).unwrap().is_none(), "the other side of a wall");
+    }
+
+    #[test]
+    fn pole_and_point_coincidence_jacobians(
+        x in coordinate(), y in coordinate(), z in -5.0..5.0f64, r in 0.05..1.0f64,
+        dx in -1.0..1.0f64, dy in -1.0..1.0f64,
+    ) {
+        let params = ConformanceParams::default();
+        let pole = Pole::new(r, Vector2::new(x, y)).unwrap();
+        let near = Pole::new(r * 1.5, Vector2::new(x + dx, y + dy)).unwrap();
+        prop_assert_eq!(check_coincidence(&pole, &near, &params), Ok(true));
+        let point = Point::new(Vector3::new(x, y, z)).unwrap();
+        let other = Point::new(Vector3::new(x + dx, y + dy, z + dx)).unwrap();
+        prop_assert_eq!(check_coincidence(&point, &other, &params), Ok(true));
+        prop_assert_eq!(check_coincidence(&pole, &point, &params), Ok(false));
     }
 }

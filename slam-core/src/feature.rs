@@ -53,6 +53,19 @@ impl Growth {
     }
 }
 
+/// How far two features of one kind are from being one ([`Feature::coincidence`]): a
+/// residual, zero when they coincide, and its Jacobians with respect to the coordinates of
+/// both.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Coincidence {
+    /// The residual.
+    pub residual: DVector<f64>,
+    /// `d residual / d x_f` of the feature asked (`residual.len() x dim(x_f)`).
+    pub d_self: DMatrix<f64>,
+    /// `d residual / d x_f` of the other feature.
+    pub d_other: DMatrix<f64>,
+}
+
 /// A map feature in the M-space representation (paper section IV).
 ///
 /// A feature owns its coordinates `x_f` (a list of 3-D point, 2-D point and scalar blocks) and
@@ -194,6 +207,26 @@ pub trait Feature: dyn_clone::DynClone + Debug + Send + Sync + Any {
             });
         }
         sketch
+    }
+
+    /// The residual that is zero when `other`, a feature of the same kind, is this same
+    /// physical feature (e.g. a wall mapped twice), with its Jacobians, for an estimator
+    /// that merges duplicates: it tests the residual against its covariance and, when it
+    /// passes, constrains the two together and removes one. `Ok(None)` (the default) when
+    /// this type is never merged or `other` cannot be this feature (another kind, facing the
+    /// other way). Only what both features estimate should enter the residual (a wall's line,
+    /// not its extent).
+    fn coincidence(&self, other: &dyn Feature) -> Result<Option<Coincidence>> {
+        let _ = other;
+        Ok(None)
+    }
+
+    /// After a merge: the coordinates of this feature grown, outside its M-space, to cover
+    /// `other` (a wall extended along its line over the other's extent); `Ok(None)` (the
+    /// default) when nothing changes.
+    fn absorbed(&self, other: &dyn Feature) -> Result<Option<crate::Extension>> {
+        let _ = other;
+        Ok(None)
     }
 
     /// Marks block `index` as shared and re-parameterizes the own rows accordingly (eq. 33).

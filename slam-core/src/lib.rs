@@ -42,7 +42,9 @@ pub use nalgebra;
 pub use coords::{BlockKind, CoordBlock, Coordinates};
 pub use error::{Error, Result, ensure_finite};
 pub use estimator::{Estimator, Observation, Skips, UpdateReport};
-pub use feature::{Feature, Growth, Subspace, downcast_feature, downcast_feature_mut, stack_rows};
+pub use feature::{
+    Coincidence, Feature, Growth, Subspace, downcast_feature, downcast_feature_mut, stack_rows,
+};
 pub use map::{
     FeatureId, FeatureMap, MapLinearization, RowOwner, RowTransform, SharedBlock, SharedBlockId,
 };

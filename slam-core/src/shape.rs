@@ -132,6 +132,76 @@ impl Shape {
     }
 }
 
+impl Shape {
+    /// How far this shape lies from `other` where they overlap, `None` when they are not
+    /// comparable: of different kinds, segments more than `max_angle` (rad) from parallel or
+    /// facing opposite ways (the two sides of a thin wall), or segments whose extents do not
+    /// overlap along `other`. For segments (walls, and lines in the floor plane) it is the
+    /// larger distance from `other`'s line of this segment's part over `other`; for poles and
+    /// points the distance between them.
+    ///
+    /// ```
+    /// use slam_core::Shape;
+    /// use slam_core::nalgebra::Vector2;
+    /// let wall = |ax: f64, ay: f64, bx: f64, by: f64| Shape::Wall {
+    ///     start: Vector2::new(ax, ay), end: Vector2::new(bx, by) };
+    /// let a = wall(0.0, 0.0, 4.0, 0.0);
+    /// assert!((wall(3.0, 0.1, 6.0, 0.1).overlap_separation(&a, 0.1).unwrap() - 0.1).abs() < 1e-12);
+    /// assert_eq!(wall(5.0, 0.0, 6.0, 0.0).overlap_separation(&a, 0.1), None); // no overlap
+    /// assert_eq!(wall(4.0, 0.1, 0.0, 0.1).overlap_separation(&a, 0.1), None); // the other side
+    /// ```
+    pub fn overlap_separation(&self, other: &Shape, max_angle: f64) -> Option<f64> {
+        match (self, other) {
+            (Shape::Wall { start, end }, Shape::Wall { start: s, end: e }) => {
+                overlap_separation(start, end, s, e, max_angle)
+            }
+            (Shape::Line { start, end }, Shape::Line { start: s, end: e }) => {
+                overlap_separation(&start.xy(), &end.xy(), &s.xy(), &e.xy(), max_angle)
+            }
+            (Shape::Pole { centre, .. }, Shape::Pole { centre: c, .. }) => {
+                Some((centre - c).norm())
+            }
+            (Shape::Point { position }, Shape::Point { position: p }) => {
+                Some((position - p).norm())
+            }
+            (Shape::PlanarPoint { position }, Shape::PlanarPoint { position: p }) => {
+                Some((position - p).norm())
+            }
+            _ => None,
+        }
+    }
+}
+
+/// See [`Shape::overlap_separation`]: segment `a b` against segment `s e`.
+fn overlap_separation(
+    a: &Vector2<f64>,
+    b: &Vector2<f64>,
+    s: &Vector2<f64>,
+    e: &Vector2<f64>,
+    max_angle: f64,
+) -> Option<f64> {
+    let (length, other_length) = ((b - a).norm(), (e - s).norm());
+    if length == 0.0 || other_length == 0.0 {
+        return None;
+    }
+    let tangent = (e - s) / other_length;
+    if (b - a).dot(&tangent) / length < max_angle.cos() {
+        return None;
+    }
+    let normal = Vector2::new(-tangent.y, tangent.x);
+    let along = |p: &Vector2<f64>| (p - s).dot(&tangent);
+    let (ta, tb) = (along(a), along(b));
+    let (lo, hi) = (ta.max(0.0), tb.min(other_length));
+    if hi < lo {
+        return None;
+    }
+    let offset = |t: f64| {
+        let point = a + (b - a) * ((t - ta) / (tb - ta));
+        (point - s).dot(&normal).abs()
+    };
+    Some(offset(lo).max(offset(hi)))
+}
+
 /// The smallest of `distance(truth)` over the truths it is defined for.
 fn nearest(truths: &[Shape], distance: impl Fn(&Shape) -> Option<f64>) -> Option<f64> {
     truths.iter().filter_map(distance).min_by(f64::total_cmp)

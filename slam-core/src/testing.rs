@@ -261,6 +261,85 @@ fn check_unobserved_directions(explored: &[Explored], params: &ConformanceParams
     Ok(())
 }
 
+/// Checks [`Feature::coincidence`] of `feature` against `other`: the Jacobians `d_self` and
+/// `d_other` against central differences of the residual in each feature's coordinates, and
+/// the residual zero when `other` is `feature` itself. `Ok(false)` when the type gives no
+/// coincidence for this pair, `Ok(true)` when it was checked.
+///
+/// ```
+/// use slam_core::testing::{check_coincidence, ConformanceParams};
+/// use slam_core::Feature;
+/// // A type without `coincidence` is never merged: nothing to check.
+/// fn merged_kind(a: &dyn Feature, b: &dyn Feature) -> bool {
+///     check_coincidence(a, b, &ConformanceParams::default()) == Ok(true)
+/// }
+/// # let _ = merged_kind;
+/// ```
+pub fn check_coincidence(
+    feature: &dyn Feature,
+    other: &dyn Feature,
+    params: &ConformanceParams,
+) -> Check<bool> {
+    let configuration = describe(feature);
+    let evaluate = |a: &dyn Feature, b: &dyn Feature| match a.coincidence(b) {
+        Ok(found) => Ok(found),
+        Err(e) => fail("coincidence", &configuration, format!("refused: {e}")),
+    };
+    let Some(at) = evaluate(feature, other)? else {
+        return Ok(false);
+    };
+    let moved = |base: &dyn Feature, x: &DVector<f64>| -> Option<Box<dyn Feature>> {
+        let mut copy = dyn_clone::clone_box(base);
+        let coordinates = base.coordinates().with_vector(x).ok()?;
+        copy.set_coordinates(coordinates).ok()?;
+        Some(copy)
+    };
+    let residual_or_nan = |found: Option<Box<dyn Feature>>, swap: bool| -> DVector<f64> {
+        let residual = found.and_then(|f| {
+            let result = if swap {
+                feature.coincidence(&*f)
+            } else {
+                f.coincidence(other)
+            };
+            result.ok().flatten().map(|c| c.residual)
+        });
+        residual.unwrap_or_else(|| DVector::from_element(at.residual.len(), f64::NAN))
+    };
+    let x_self = feature.coordinates().to_vector();
+    let numeric_self = numeric_jacobian(&x_self, params.step, |x| {
+        residual_or_nan(moved(feature, x), false)
+    });
+    compare_jacobians(
+        "coincidence d_self",
+        &configuration,
+        &at.d_self,
+        &numeric_self,
+        params.jacobian_tolerance,
+    )?;
+    let x_other = other.coordinates().to_vector();
+    let numeric_other = numeric_jacobian(&x_other, params.step, |x| {
+        residual_or_nan(moved(other, x), true)
+    });
+    compare_jacobians(
+        "coincidence d_other",
+        &configuration,
+        &at.d_other,
+        &numeric_other,
+        params.jacobian_tolerance,
+    )?;
+    if let Some(itself) = evaluate(feature, feature)? {
+        let scale = 1.0 + feature.coordinates().to_vector().amax();
+        if itself.residual.amax() > params.identity_tolerance * scale {
+            return fail(
+                "coincidence",
+                &configuration,
+                format!("a feature is not itself: residual {}", itself.residual),
+            );
+        }
+    }
+    Ok(true)
+}
+
 /// Panics with a readable message unless `feature` passes [`check_feature`] with default
 /// parameters. Use it in a test: `assert_feature_conforms(&Wall::new(...)?)`.
 pub fn assert_feature_conforms(feature: &dyn Feature) {

@@ -54,6 +54,14 @@ pub struct LaserOdometryParams {
     /// A match farther than this squared Mahalanobis distance from the odometry (under the
     /// odometry's covariance) is refused; the default is the 99.9 % point of chi-square(3).
     pub max_mahalanobis: f64,
+    /// Scans in the local map each scan is matched to: the last `local_map_scans` key scans,
+    /// placed by their matched poses. 1 matches each scan to the previous key scan only.
+    pub local_map_scans: usize,
+    /// A scan becomes a key scan (joins the local map) when it lies this far from the last
+    /// key scan, m ...
+    pub keyframe_distance: f64,
+    /// ... or has turned this much from it, rad.
+    pub keyframe_angle: f64,
 }
 
 impl Default for LaserOdometryParams {
@@ -66,6 +74,9 @@ impl Default for LaserOdometryParams {
             min_matched: 30,
             information_divisor: 4.0,
             max_mahalanobis: 16.27,
+            local_map_scans: 50,
+            keyframe_distance: 0.2,
+            keyframe_angle: 0.1,
         }
     }
 }
@@ -85,6 +96,15 @@ impl LaserOdometryParams {
                 "information_divisor > 0",
             ),
             (positive(self.max_mahalanobis), "max_mahalanobis > 0"),
+            (self.local_map_scans >= 1, "local_map_scans >= 1"),
+            (
+                self.keyframe_distance.is_finite() && self.keyframe_distance >= 0.0,
+                "keyframe_distance >= 0",
+            ),
+            (
+                self.keyframe_angle.is_finite() && self.keyframe_angle >= 0.0,
+                "keyframe_angle >= 0",
+            ),
         ];
         match checks.iter().find(|(ok, _)| !ok) {
             Some((_, what)) => Err(SensorError::InvalidArgument(format!(
@@ -229,12 +249,24 @@ pub fn match_scans(
     params: &LaserOdometryParams,
 ) -> Result<Option<ScanMatch>> {
     params.validate()?;
+    let reference = with_normals(reference, params.gate);
+    match_to_points(&reference, current, guess, guess_covariance, params)
+}
+
+/// [`match_scans`] with the reference given as points with unit normals (e.g. a local map of
+/// several scans, all in one frame): `current`'s pose in that frame.
+fn match_to_points(
+    reference: &[(Vector2<f64>, Vector2<f64>)],
+    current: &[Vector2<f64>],
+    guess: &Pose2,
+    guess_covariance: &Matrix3<f64>,
+    params: &LaserOdometryParams,
+) -> Result<Option<ScanMatch>> {
     slam_core::ensure_finite(guess.to_vector().as_slice(), "scan match guess")?;
     slam_core::ensure_finite(guess_covariance.as_slice(), "scan match prior")?;
     let prior_information = guess_covariance.try_inverse().ok_or_else(|| {
         SensorError::InvalidArgument("scan match prior covariance is singular".into())
     })?;
-    let reference = with_normals(reference, params.gate);
     let offset = |pose: &Pose2| -> Vector3<f64> {
         Vector3::new(
             pose.x - guess.x,
@@ -251,7 +283,7 @@ pub fn match_scans(
         // The grid's cell is the gate: rebuilt only while the gate narrows.
         let grid = match grid.take() {
             Some(g) if g.cell == gate => grid.insert(g),
-            _ => grid.insert(Grid::new(&reference, gate)),
+            _ => grid.insert(Grid::new(reference, gate)),
         };
         let scale = params.point_sigma * widening;
         let weight = 1.0 / (scale * scale * params.information_divisor);
@@ -399,7 +431,7 @@ pub fn laser_odometry_stream(
         params: params.clone(),
         counts: counts.clone(),
         pending: Vec::new(),
-        previous: None,
+        chain: None,
     };
     let events = EventStream::new(info, Pump::new(matcher)).with_skipped(skipped);
     Ok((events, counts))
@@ -412,8 +444,76 @@ struct Matcher {
     counts: LaserOdometryCounts,
     /// Motion events since the previous scan.
     pending: Vec<TimedEvent>,
-    /// The previous scan's points (sensor frame) and its planar mount.
-    previous: Option<(Vec<Vector2<f64>>, Pose2)>,
+    /// The chain of matched scans since the last break (none before the first scan).
+    chain: Option<Chain>,
+}
+
+/// A chain of matched scans from one laser: poses in the chain's own frame (the first scan's
+/// sensor frame), and the local map.
+struct Chain {
+    /// The laser's planar mount.
+    robot_from_sensor: Pose2,
+    /// The previous scan's sensor pose.
+    chain_from_previous: Pose2,
+    /// The key scans: sensor pose and points with normals in the sensor frame, oldest first.
+    key_scans: VecDeque<KeyScan>,
+}
+
+/// A key scan: its sensor pose in the chain frame, and its points with their normals in its
+/// sensor frame.
+type KeyScan = (Pose2, Vec<(Vector2<f64>, Vector2<f64>)>);
+
+impl Chain {
+    /// A chain starting at `points`, the first scan.
+    fn new(
+        robot_from_sensor: Pose2,
+        points: &[Vector2<f64>],
+        params: &LaserOdometryParams,
+    ) -> Self {
+        let mut chain = Chain {
+            robot_from_sensor,
+            chain_from_previous: Pose2::identity(),
+            key_scans: VecDeque::new(),
+        };
+        chain.add_key_scan(Pose2::identity(), points, params);
+        chain
+    }
+
+    /// Adds a key scan at `chain_from_sensor`, dropping the oldest beyond the map's size.
+    fn add_key_scan(
+        &mut self,
+        chain_from_sensor: Pose2,
+        points: &[Vector2<f64>],
+        params: &LaserOdometryParams,
+    ) {
+        self.key_scans
+            .push_back((chain_from_sensor, with_normals(points, params.gate)));
+        while self.key_scans.len() > params.local_map_scans {
+            self.key_scans.pop_front();
+        }
+    }
+
+    /// Whether a scan at `chain_from_sensor` is far enough from the last key scan to be one.
+    fn is_key(&self, chain_from_sensor: &Pose2, params: &LaserOdometryParams) -> bool {
+        self.key_scans.back().is_none_or(|(last, _)| {
+            let moved = last.between(chain_from_sensor);
+            moved.translation().norm() >= params.keyframe_distance
+                || moved.theta.abs() >= params.keyframe_angle
+        })
+    }
+
+    /// The key scans' points and normals in the chain frame.
+    fn local_map(&self) -> Vec<(Vector2<f64>, Vector2<f64>)> {
+        self.key_scans
+            .iter()
+            .flat_map(|(pose, points)| {
+                let rotation = pose.rotation();
+                points
+                    .iter()
+                    .map(move |(p, n)| (pose.transform_point(p), rotation * n))
+            })
+            .collect()
+    }
 }
 
 impl Step for Matcher {
@@ -423,7 +523,6 @@ impl Step for Matcher {
             return Ok(false);
         };
         let timed = timed?;
-        let params = &self.params;
         match &timed.event {
             Event::Motion(_) => self.pending.push(timed),
             Event::Scan {
@@ -434,40 +533,16 @@ impl Step for Matcher {
                 let points: Vec<Vector2<f64>> = scan
                     .points()
                     .into_iter()
-                    .filter(|p| p.range <= params.max_range)
+                    .filter(|p| p.range <= self.params.max_range)
                     .map(|p| p.position)
                     .collect();
-                let chained = self
-                    .previous
-                    .as_ref()
-                    .filter(|(_, before)| before.to_vector() == mount.to_vector());
-                match chained {
-                    Some((reference, _)) if !self.pending.is_empty() => {
-                        match match_to_previous(reference, &points, &mount, &self.pending, params)?
-                        {
-                            Some(increment) => {
-                                self.pending.clear();
-                                out.push_back(TimedEvent {
-                                    time: timed.time,
-                                    event: Event::Motion(Box::new(increment)),
-                                });
-                                self.counts.matched.fetch_add(1, Ordering::Relaxed);
-                            }
-                            None => {
-                                out.extend(self.pending.drain(..));
-                                self.counts.refused.fetch_add(1, Ordering::Relaxed);
-                            }
-                        }
-                    }
-                    _ => out.extend(self.pending.drain(..)),
-                }
-                self.previous = Some((points, mount));
+                self.on_scan(timed.time, mount, &points, out)?;
                 out.push_back(timed);
             }
             Event::Observations(_) | Event::Image { .. } | Event::Gps(_) => {
                 if !self.pending.is_empty() {
                     out.extend(self.pending.drain(..));
-                    self.previous = None;
+                    self.chain = None;
                 }
                 out.push_back(timed);
             }
@@ -477,26 +552,90 @@ impl Step for Matcher {
     }
 }
 
-/// The robot increment of the match of `current` to `reference`, the odometry `pending`
-/// between them as the prior; `None` if the match is refused.
-fn match_to_previous(
-    reference: &[Vector2<f64>],
+impl Matcher {
+    /// Matches a scan to the chain's local map and writes the increment (or the pending
+    /// motion, if refused) to `out`; a scan from another mount starts a new chain.
+    fn on_scan(
+        &mut self,
+        time: f64,
+        mount: Pose2,
+        points: &[Vector2<f64>],
+        out: &mut VecDeque<TimedEvent>,
+    ) -> Result<()> {
+        let params = &self.params;
+        let chain = match self.chain.as_mut() {
+            Some(chain)
+                if chain.robot_from_sensor.to_vector() == mount.to_vector()
+                    && !self.pending.is_empty() =>
+            {
+                chain
+            }
+            _ => {
+                out.extend(self.pending.drain(..));
+                self.chain = Some(Chain::new(mount, points, params));
+                return Ok(());
+            }
+        };
+        match match_to_local_map(chain, points, &self.pending, params)? {
+            Some((increment, chain_from_current)) => {
+                self.pending.clear();
+                out.push_back(TimedEvent {
+                    time,
+                    event: Event::Motion(Box::new(increment)),
+                });
+                self.counts.matched.fetch_add(1, Ordering::Relaxed);
+                chain.chain_from_previous = chain_from_current;
+                if chain.is_key(&chain_from_current, params) {
+                    chain.add_key_scan(chain_from_current, points, params);
+                }
+            }
+            None => {
+                out.extend(self.pending.drain(..));
+                self.counts.refused.fetch_add(1, Ordering::Relaxed);
+                // The local map no longer fits the pose chain: start afresh here.
+                self.chain = Some(Chain::new(mount, points, params));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The robot increment from the previous scan to `current` by matching `current` to the
+/// chain's local map, the odometry `pending` since the previous scan as the prior; with the
+/// current scan's sensor pose in the chain frame. `None` if the match is refused.
+fn match_to_local_map(
+    chain: &Chain,
     current: &[Vector2<f64>],
-    robot_from_sensor: &Pose2,
     pending: &[TimedEvent],
     params: &LaserOdometryParams,
-) -> Result<Option<PoseIncrement>> {
+) -> Result<Option<(PoseIncrement, Pose2)>> {
+    let robot_from_sensor = &chain.robot_from_sensor;
     let (odometry, odometry_covariance) = compound(pending)?;
     // A floor keeps the prior invertible for a robot that stood still.
     let floor = Matrix3::from_diagonal(&Vector3::new(1e-8, 1e-8, 1e-10));
     let odometry_covariance = odometry_covariance + floor;
-    let sensor_from_robot = robot_from_sensor.inverse();
-    let (guess, d_guess) = conjugate(&sensor_from_robot, &odometry);
+    let (sensor_motion, d_sensor_motion) = conjugate(&robot_from_sensor.inverse(), &odometry);
+    let (guess, _, d_guess) = chain
+        .chain_from_previous
+        .compose_with_jacobians(&sensor_motion);
+    let d_guess = d_guess * d_sensor_motion;
     let guess_covariance = d_guess * odometry_covariance * d_guess.transpose();
-    let Some(matched) = match_scans(reference, current, &guess, &guess_covariance, params)? else {
+    let Some(matched) = match_to_points(
+        &chain.local_map(),
+        current,
+        &guess,
+        &guess_covariance,
+        params,
+    )?
+    else {
         return Ok(None);
     };
-    let (increment, d_increment) = conjugate(robot_from_sensor, &matched.reference_from_current);
+    let chain_from_current = matched.reference_from_current;
+    let (matched_motion, _, d_matched_motion) = chain
+        .chain_from_previous
+        .between_with_jacobians(&chain_from_current);
+    let (increment, d_increment) = conjugate(robot_from_sensor, &matched_motion);
+    let d_increment = d_increment * d_matched_motion;
     let covariance = d_increment * matched.covariance * d_increment.transpose();
     let difference = Vector3::new(
         increment.x - odometry.x,
@@ -510,7 +649,10 @@ fn match_to_previous(
         return Ok(None);
     }
     let covariance = (covariance + covariance.transpose()) * 0.5;
-    Ok(Some(PoseIncrement::new(increment, covariance)?))
+    Ok(Some((
+        PoseIncrement::new(increment, covariance)?,
+        chain_from_current,
+    )))
 }
 
 #[cfg(test)]

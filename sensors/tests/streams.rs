@@ -497,7 +497,7 @@ fn laser_odometry_streams_the_events_of_the_in_memory_version() {
     check_laser_odometry(
         || simulate_stream(&world, 1).unwrap().events,
         300,
-        "241 d2862fdee28e45cf",
+        "241 ea44acc0e8cc41f6",
         LaserOdometryReport {
             matched: 59,
             refused: 0,
@@ -508,10 +508,10 @@ fn laser_odometry_streams_the_events_of_the_in_memory_version() {
     check_laser_odometry(
         || stream_carmen(&intel, &CarmenOptions::default()).unwrap(),
         2000,
-        "614 38da9a8703dd8ed7",
+        "596 839b7f467b516392",
         LaserOdometryReport {
-            matched: 80,
-            refused: 10,
+            matched: 82,
+            refused: 8,
         },
     );
 }

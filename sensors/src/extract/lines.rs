@@ -38,6 +38,10 @@ pub struct LineExtractorParams {
     /// Clusters shorter than this that stand free of their surroundings (both neighbouring
     /// readings farther by `jump`, or no return) are objects such as pillars, not walls, m.
     pub min_free_standing_length: f64,
+    /// Widen a segment's covariance by its fit: by the residual variance of its points over
+    /// `sigma_range^2` when that exceeds 1, so that a rough or slightly curved real wall is not
+    /// taken as exactly known (off by default: a simulated wall is exactly straight).
+    pub scale_by_residuals: bool,
 }
 
 impl Default for LineExtractorParams {
@@ -53,6 +57,7 @@ impl Default for LineExtractorParams {
             min_corner_angle: 30f64.to_radians(),
             jump: 0.3,
             min_free_standing_length: 1.0,
+            scale_by_residuals: false,
         }
     }
 }
@@ -482,7 +487,7 @@ fn segment(points: &[ScanPoint], params: &LineExtractorParams) -> Option<Extract
     Some(ExtractedSegment {
         alpha: fit.alpha(),
         rho: fit.rho,
-        cov: fit.covariance(points, params.sigma_range),
+        cov: fit.covariance(points, params.sigma_range) * residual_scale(&fit, points, params),
         ends: [fit.project(&first.position), fit.project(&last.position)],
         real: [false, false],
         corner: [false, false],
@@ -493,6 +498,21 @@ fn segment(points: &[ScanPoint], params: &LineExtractorParams) -> Option<Extract
             spacing(last, points.iter().rev().nth(1)),
         ],
     })
+}
+
+/// How much worse than the range noise the points fit their line: the residual variance over
+/// `sigma_range^2` (at least 1), when [`LineExtractorParams::scale_by_residuals`] is set,
+/// else 1. A rough or slightly curved wall gets a wider covariance.
+fn residual_scale(fit: &LineFit, points: &[ScanPoint], params: &LineExtractorParams) -> f64 {
+    if !params.scale_by_residuals || points.len() <= 2 {
+        return 1.0;
+    }
+    let sum: f64 = points
+        .iter()
+        .map(|p| fit.distance(&p.position).powi(2))
+        .sum();
+    let variance = sum / (points.len() - 2) as f64;
+    (variance / params.sigma_range.powi(2)).max(1.0)
 }
 
 /// A real end's position and its deviation along the wall, m.

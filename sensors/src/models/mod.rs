@@ -12,7 +12,7 @@ pub use camera::{ImageLineObservation, ImagePointObservation};
 pub use line_point::LinePoint;
 pub use pole::PoleObservation;
 pub use range_bearing::RangeBearing;
-pub use wall::WallObservation;
+pub use wall::{BEYOND_ESTIMATED_END, MAX_GAP, WallObservation};
 
 use slam_core::Pose3;
 use slam_core::nalgebra::{Matrix2, Vector2};

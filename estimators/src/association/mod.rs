@@ -54,6 +54,11 @@ pub struct AssociationSettings {
     pub margin: f64,
     /// Node limit of the JCBB search.
     pub jcbb_max_nodes: usize,
+    /// An unmatched observation does not start a feature where the feature it would start
+    /// overlaps an existing one of its kind within this distance (m; 0: no such rule): it
+    /// is that feature seen with more error than the gates expect, and a second feature
+    /// there would double it.
+    pub new_feature_clearance: f64,
 }
 
 impl AssociationSettings {
@@ -75,6 +80,10 @@ impl AssociationSettings {
                 "association_margin >= 0",
             ),
             (self.jcbb_max_nodes >= 1, "jcbb_max_nodes >= 1"),
+            (
+                self.new_feature_clearance.is_finite() && self.new_feature_clearance >= 0.0,
+                "new_feature_clearance >= 0",
+            ),
         ]
     }
 }
@@ -218,6 +227,38 @@ pub(crate) fn candidate_features<'a, K>(
     out
 }
 
+/// Largest angle between a new feature and an existing one for the clearance rule, rad.
+const CLEARANCE_ANGLE: f64 = 0.2;
+
+/// Whether the feature `measurement` would start (from `world_from_sensor`) overlaps one of
+/// `features` within `clearance` ([`AssociationSettings::new_feature_clearance`],
+/// [`slam_core::Shape::overlap_separation`]).
+pub(crate) fn crowded<'a>(
+    features: impl Iterator<Item = &'a dyn Feature>,
+    measurement: &dyn DynMeasurementModel,
+    world_from_sensor: &Pose3,
+    clearance: f64,
+) -> bool {
+    if clearance <= 0.0 {
+        return false;
+    }
+    let Some(shape) = measurement
+        .initial_feature_dyn(world_from_sensor)
+        .ok()
+        .flatten()
+        .and_then(|f| f.shape())
+    else {
+        return false;
+    };
+    features.filter(|f| measurement.accepts(*f)).any(|f| {
+        f.shape().is_some_and(|other| {
+            shape
+                .overlap_separation(&other, CLEARANCE_ANGLE)
+                .is_some_and(|d| d <= clearance)
+        })
+    })
+}
+
 /// Whether a candidate passes the individual gate for its innovation dimension.
 fn in_gate<T>(candidate: &Candidate<T>, gate_probability: f64, gates: &Gates) -> Result<bool> {
     Ok(candidate.distance <= gates.gate(gate_probability, candidate.dof)?)
@@ -304,6 +345,7 @@ mod tests {
             new_feature_probability: 0.9999,
             margin: 3.0,
             jcbb_max_nodes: 1000,
+            new_feature_clearance: 0.0,
         }
     }
 
@@ -386,5 +428,51 @@ mod tests {
         let lists = vec![vec![candidate(3, 1.0, true)]];
         let jcbb = associate(&lists, &settings(Association::Jcbb), &gates(), sum).unwrap();
         assert_eq!(jcbb, vec![Choice::Pair(0)]);
+    }
+
+    /// A new wall is refused where it would lie on an existing one (within the clearance,
+    /// overlapping, parallel), and allowed beside it, beyond it or with the rule off.
+    #[test]
+    fn a_new_wall_on_top_of_an_existing_one_is_crowded() {
+        use slam_core::Pose3;
+        use slam_core::nalgebra::{Matrix2, Vector2};
+        use slam_features::Wall;
+        use slam_sensors::models::WallObservation;
+        let existing = Wall::seen_from(
+            Vector2::new(0.0, 2.0),
+            Vector2::new(4.0, 2.0),
+            Vector2::zeros(),
+        )
+        .unwrap();
+        let sighting = |a: (f64, f64), b: (f64, f64)| {
+            WallObservation::from_segment(
+                Vector2::new(a.0, a.1),
+                Vector2::new(b.0, b.1),
+                Matrix2::new(1e-4, 0.0, 0.0, 4e-4),
+                [false, false],
+                [0.05, 0.05],
+            )
+            .unwrap()
+        };
+        let crowded_at = |m: &WallObservation, clearance: f64| {
+            let features: [&dyn Feature; 1] = [&existing];
+            crowded(features.into_iter(), m, &Pose3::identity(), clearance)
+        };
+        let on_top = sighting((1.0, 2.1), (3.0, 2.1));
+        assert!(crowded_at(&on_top, 0.15));
+        assert!(!crowded_at(&on_top, 0.05), "farther than the clearance");
+        assert!(!crowded_at(&on_top, 0.0), "the rule is off");
+        assert!(
+            !crowded_at(&sighting((1.0, 2.5), (3.0, 2.5)), 0.15),
+            "beside it"
+        );
+        assert!(
+            !crowded_at(&sighting((4.5, 2.0), (6.0, 2.0)), 0.15),
+            "beyond its end"
+        );
+        assert!(
+            !crowded_at(&sighting((2.0, 0.5), (2.0, 1.9)), 0.15),
+            "across it"
+        );
     }
 }

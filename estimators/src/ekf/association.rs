@@ -6,7 +6,9 @@ use slam_core::{Observation, Result, RobotPose};
 
 use super::jacobians::stack;
 use super::{Decision, Ekf, Pairing};
-use crate::association::{Candidate, Choice, associate, candidate_features, sort_by_distance};
+use crate::association::{
+    Candidate, Choice, associate, candidate_features, crowded, sort_by_distance,
+};
 
 impl<P: RobotPose> Ekf<P> {
     /// The candidate features of an observation with their Mahalanobis distances, nearest
@@ -88,6 +90,11 @@ impl<P: RobotPose> Ekf<P> {
                     .into_iter()
                     .nth(k)
                     .map_or(Decision::Reject, |c| Decision::Pair(c.data)),
+                Choice::New if self.crowded(&observations[index]) => {
+                    self.skips
+                        .count("association: a new feature would double an existing one");
+                    Decision::Reject
+                }
                 Choice::New => Decision::New,
                 Choice::Ambiguous => Decision::Reject,
             });
@@ -96,6 +103,18 @@ impl<P: RobotPose> Ekf<P> {
             .into_iter()
             .map(|d| d.unwrap_or(Decision::Reject))
             .collect())
+    }
+
+    /// Whether the feature `observation` would start overlaps an existing one within the
+    /// clearance.
+    fn crowded(&self, observation: &Observation) -> bool {
+        let world_from_sensor = self.pose.world_from_sensor(&observation.robot_from_sensor);
+        crowded(
+            self.map.iter().map(|(_, f)| f),
+            observation.measurement.as_ref(),
+            &world_from_sensor,
+            self.params.new_feature_clearance,
+        )
     }
 
     /// Joint Mahalanobis distance and dimension of a set of pairings (for JCBB).

@@ -115,8 +115,14 @@ impl<P: RobotPose> Ekf<P> {
         if self.params.observability_constraint {
             h = project_out(&h, &self.cov.generators(&indices));
         }
-        let dx = self.cov.update(&indices, &h, &noise, &difference)?;
-        self.apply_state_change(&dx)?;
+        let prepared = self.cov.prepare_update(&indices, &h, &noise, &difference)?;
+        // All or nothing: a join that would turn a feature around is not made.
+        if self.apply_state_change(&prepared.dx).is_err() {
+            self.skips
+                .count("corners: the join would move a feature where it cannot go");
+            return Ok(false);
+        }
+        self.cov.commit(prepared);
         Ok(true)
     }
 

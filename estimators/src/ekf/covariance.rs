@@ -152,6 +152,7 @@ impl StateCovariance {
     /// `dx = -W L^{-1} eta` (eq. 31) and the covariance becomes `C - W W^T` (eq. 32), a
     /// symmetric rank-m downdate that keeps `C` symmetric by construction (the symmetric
     /// equivalent of the Joseph form for the optimal gain). Returns `dx` over all rows.
+    #[cfg(test)]
     pub(crate) fn update(
         &mut self,
         indices: &[usize],

@@ -20,11 +20,17 @@
 //! 4. **Corners**: two features whose shareable blocks (wall ends) are fully estimated and
 //!    statistically the same point are constrained together and then share the block
 //!    (section VI, eq. 33): the covariance is re-parameterized onto the shared rows.
+//! 5. **Duplicates**: a confirmed feature seen this step that is, by its joint covariance with
+//!    another of its kind, the same physical feature ([`slam_core::Feature::coincidence`]) is
+//!    constrained to it and removed, the kept one grown over its extent (see `merge.rs`).
+//!    An unmatched observation that would start a feature on top of an existing one (within
+//!    `new_feature_clearance`) is refused instead.
 
 mod association;
 mod corners;
 mod covariance;
 mod jacobians;
+mod merge;
 mod update;
 mod views;
 
@@ -77,6 +83,21 @@ pub struct EkfParams {
     pub association_margin: f64,
     /// Node limit of the JCBB search (the best hypothesis so far is used when reached).
     pub jcbb_max_nodes: usize,
+    /// An unmatched observation does not start a feature that would overlap an existing
+    /// one of its kind within this distance, m (0: off): it would double that feature.
+    pub new_feature_clearance: f64,
+    /// Whether confirmed features that are one physical feature (a wall mapped twice) are
+    /// merged: tested with their joint covariance, constrained together, one removed.
+    pub merge_duplicates: bool,
+    /// Probability of the chi-square gate two features' difference must pass to be merged.
+    pub merge_probability: f64,
+    /// Features are tested for merging when their shapes overlap within this distance, m.
+    pub merge_distance: f64,
+    /// Deviation two duplicates may have beyond their covariance, in the units of the
+    /// coincidence residual (m for walls, poles and points): a real wall is not a line, and
+    /// a wall updated a hundred times has a covariance far below its model error. Added to
+    /// the merge test's covariance and to the merge constraint's noise. Default 0.
+    pub merge_tolerance: f64,
     /// Observability-constrained updates (Huang, Mourikis & Roumeliotis, "Observability-based
     /// rules for designing consistent EKF SLAM estimators", IJRR 2010): each measurement
     /// Jacobian is projected so that it cannot observe a world translation or rotation, and
@@ -100,6 +121,11 @@ impl Default for EkfParams {
             max_views: 8,
             association_margin: 3.0,
             jcbb_max_nodes: 20_000,
+            new_feature_clearance: 0.0,
+            merge_duplicates: true,
+            merge_probability: 0.99,
+            merge_distance: 0.5,
+            merge_tolerance: 0.0,
             observability_constraint: true,
         }
     }
@@ -114,6 +140,18 @@ impl EkfParams {
             self.corner_distance.is_finite() && self.corner_distance >= 0.0,
             "corner_distance >= 0",
         ));
+        checks.push((
+            self.merge_probability > 0.0 && self.merge_probability < 1.0,
+            "merge_probability in (0, 1)",
+        ));
+        checks.push((
+            self.merge_distance.is_finite() && self.merge_distance >= 0.0,
+            "merge_distance >= 0",
+        ));
+        checks.push((
+            self.merge_tolerance.is_finite() && self.merge_tolerance >= 0.0,
+            "merge_tolerance >= 0",
+        ));
         first_failure("EKF", &checks)
     }
 
@@ -125,6 +163,7 @@ impl EkfParams {
             new_feature_probability: self.new_feature_probability,
             margin: self.association_margin,
             jcbb_max_nodes: self.jcbb_max_nodes,
+            new_feature_clearance: self.new_feature_clearance,
         }
     }
 
@@ -177,6 +216,7 @@ pub struct Ekf<P: RobotPose> {
     gates: Gates,
     step: usize,
     corners_joined: usize,
+    features_merged: usize,
     /// Earlier views of features that grew by triangulation in this step, to update with.
     view_batch: Vec<Pairing>,
     /// What the current step left out, by reason.
@@ -221,6 +261,7 @@ impl<P: RobotPose> Ekf<P> {
             gates,
             step: 0,
             corners_joined: 0,
+            features_merged: 0,
             view_batch: Vec::new(),
             skips: Skips::default(),
         })
@@ -258,6 +299,11 @@ impl<P: RobotPose> Ekf<P> {
     /// Corners joined so far.
     pub fn corners_joined(&self) -> usize {
         self.corners_joined
+    }
+
+    /// Features merged into others so far.
+    pub fn features_merged(&self) -> usize {
+        self.features_merged
     }
 
     /// Whether feature `id` has rows in the state (it is no longer tentative).

@@ -6,7 +6,9 @@ use std::collections::BTreeSet;
 use std::sync::Arc;
 
 use slam_core::nalgebra::DVector;
-use slam_core::{Error, FeatureId, Observation, Result, RobotPose, RowOwner, UpdateReport};
+use slam_core::{
+    Error, Extension, FeatureId, Observation, Result, RobotPose, RowOwner, UpdateReport,
+};
 
 use super::jacobians::{coordinate_generators, project_out, stack};
 use super::{Decision, Ekf, Pairing};
@@ -55,11 +57,14 @@ impl<P: RobotPose> Ekf<P> {
         for &(index, id) in &features.seen {
             self.extend(id, &observations[index])?;
         }
+        let touched: BTreeSet<FeatureId> = features.seen.iter().map(|&(_, id)| id).collect();
         if self.params.join_corners {
-            let touched: BTreeSet<FeatureId> = features.seen.iter().map(|&(_, id)| id).collect();
-            for id in touched {
+            for &id in &touched {
                 self.join_corners_of(id)?;
             }
+        }
+        for id in touched {
+            self.merge_duplicates_of(id)?;
         }
         self.prune_tentative()?;
         Ok(report)
@@ -278,12 +283,16 @@ impl<P: RobotPose> Ekf<P> {
     /// Applies the measurement's change outside the M-space (a wall's extent).
     fn extend(&mut self, id: FeatureId, observation: &Observation) -> Result<()> {
         let feature = self.map.get(id)?;
-        let Some(extension) = extension_of(feature, observation, &self.pose, &mut self.skips)
-        else {
-            return Ok(());
-        };
-        // A change the check refuses (it would move the feature inside its M-space) is not
-        // applied: the estimate stays as the update left it.
+        match extension_of(feature, observation, &self.pose, &mut self.skips) {
+            Some(extension) => self.apply_extension(id, extension),
+            None => Ok(()),
+        }
+    }
+
+    /// Moves feature `id` outside its M-space (an extension) and its covariance rows with it.
+    /// A change the check refuses (it would move the feature inside its M-space) is not
+    /// applied: the estimate stays as it was.
+    pub(super) fn apply_extension(&mut self, id: FeatureId, extension: Extension) -> Result<()> {
         let Ok(transform) =
             self.map
                 .set_coordinates_outside_mspace(id, extension, OUTSIDE_MSPACE_TOLERANCE)

@@ -99,6 +99,9 @@ pub struct FastSlamParams {
     pub association_margin: f64,
     /// Node limit of each particle's JCBB search (`association = "jcbb"`).
     pub jcbb_max_nodes: usize,
+    /// An unmatched observation does not start a feature that would overlap an existing
+    /// one of its kind within this distance, m (0: off): it would double that feature.
+    pub new_feature_clearance: f64,
 }
 
 impl Default for FastSlamParams {
@@ -117,6 +120,7 @@ impl Default for FastSlamParams {
             max_views: 8,
             association_margin: 3.0,
             jcbb_max_nodes: 20_000,
+            new_feature_clearance: 0.0,
         }
     }
 }
@@ -145,6 +149,7 @@ impl FastSlamParams {
             new_feature_probability: self.new_feature_probability,
             margin: self.association_margin,
             jcbb_max_nodes: self.jcbb_max_nodes,
+            new_feature_clearance: self.new_feature_clearance,
         }
     }
 

@@ -10,7 +10,7 @@ use slam_core::{DynMeasurementModel, Observation, Result, RobotPose, UpdateRepor
 use super::landmark::{Landmark, LandmarkMap};
 use super::{FastSlamParams, Proposal};
 use crate::association::{
-    Candidate, Choice, Gates, associate, candidate_features, sort_by_distance,
+    Candidate, Choice, Gates, associate, candidate_features, crowded, sort_by_distance,
 };
 use crate::lifecycle::{Sighting, Track};
 use crate::particles::{Particle, log_normal};
@@ -161,6 +161,12 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         for ((index, list), choice) in open.into_iter().zip(&lists).zip(choices) {
             decisions[index] = Some(match choice {
                 Choice::Pair(k) => Decision::Pair(list[k].feature),
+                Choice::New if self.crowded(&observations[index]) => {
+                    self.report
+                        .skipped
+                        .count("association: a new feature would double an existing one");
+                    Decision::Reject(None)
+                }
                 Choice::New => Decision::New,
                 Choice::Ambiguous => Decision::Reject(
                     list.iter()
@@ -175,6 +181,25 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             .into_iter()
             .map(|d| d.unwrap_or(Decision::Reject(None)))
             .collect())
+    }
+
+    /// Whether the feature `observation` would start overlaps one of the particle's features
+    /// within the clearance.
+    fn crowded(&self, observation: &Observation) -> bool {
+        let world_from_sensor = self
+            .particle
+            .pose
+            .world_from_sensor(&observation.robot_from_sensor);
+        crowded(
+            self.particle
+                .map
+                .landmarks
+                .iter()
+                .map(|(_, l)| l.feature.as_ref()),
+            observation.measurement.as_ref(),
+            &world_from_sensor,
+            self.context.params.new_feature_clearance,
+        )
     }
 
     /// The particle's features an observation without an id can be of, with their

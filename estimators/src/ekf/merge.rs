@@ -1,0 +1,313 @@
+//! Merging duplicates: two confirmed features that are one physical feature (a wall mapped
+//! twice after drift, a tree started twice) become one.
+//!
+//! The test is in the features' M-spaces with their joint covariance: the feature type gives
+//! the residual that is zero when the two coincide and its Jacobians
+//! ([`slam_core::Feature::coincidence`]); through `B~` (own rows) and the identity (shared
+//! blocks) these become a row block `H` on the state, and the pair is a duplicate when
+//! `r^T (H C H^T + t^2 I)^-1 r` passes the `merge_probability` gate of chi-square (`t` the
+//! `merge_tolerance`). The pair is then constrained together by an update with the residual
+//! measured zero (variance `1e-4 + t^2`; like a corner join), the kept feature grows over
+//! the other's extent ([`slam_core::Feature::absorbed`]), and the other's rows are
+//! marginalized out (deleted from the state): every correlation of the kept feature, with the
+//! pose and with the rest of the map, stays as the constraint left it.
+//!
+//! The feature kept is the one seen more often; a feature holding a shared block (a corner)
+//! is never the one removed, and two such features are not merged.
+
+use slam_core::nalgebra::{DMatrix, DVector};
+use slam_core::{Error, FeatureId, Result, RobotPose, RowOwner};
+
+use super::Ekf;
+use super::jacobians::project_out;
+
+/// Variance of the constraint that makes two features one (as for corners: tight, not
+/// perfect).
+const MERGE_CONSTRAINT_VARIANCE: f64 = 1e-4;
+
+/// Largest angle between two segments tested as duplicates, rad.
+const MERGE_ANGLE: f64 = 0.25;
+
+impl<P: RobotPose> Ekf<P> {
+    /// Merges feature `id` with every confirmed feature that is the same one (see the module
+    /// documentation). `id` itself may be merged away.
+    pub(super) fn merge_duplicates_of(&mut self, id: FeatureId) -> Result<()> {
+        if !self.params.merge_duplicates || self.map.get(id).is_err() || !self.is_confirmed(id) {
+            return Ok(());
+        }
+        for other in self.merge_candidates(id)? {
+            if self.map.get(id).is_err() {
+                break;
+            }
+            if self.map.get(other).is_ok() {
+                self.try_merge(id, other)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The confirmed features of `id`'s kind whose shape overlaps its shape within
+    /// `merge_distance`.
+    fn merge_candidates(&self, id: FeatureId) -> Result<Vec<FeatureId>> {
+        let feature = self.map.get(id)?;
+        let Some(shape) = feature.shape() else {
+            return Ok(Vec::new());
+        };
+        Ok(self
+            .map
+            .iter()
+            .filter(|(other, f)| {
+                *other != id
+                    && f.kind() == feature.kind()
+                    && self.is_confirmed(*other)
+                    && f.shape()
+                        .and_then(|s| shape.overlap_separation(&s, MERGE_ANGLE))
+                        .is_some_and(|d| d <= self.params.merge_distance)
+            })
+            .map(|(other, _)| other)
+            .collect())
+    }
+
+    /// Merges `a` and `b` if they pass the test; returns whether they were merged.
+    fn try_merge(&mut self, a: FeatureId, b: FeatureId) -> Result<bool> {
+        let Some((keep, drop)) = self.merge_roles(a, b)? else {
+            return Ok(false);
+        };
+        let Some(coincidence) = self.map.get(keep)?.coincidence(self.map.get(drop)?)? else {
+            return Ok(false);
+        };
+        let (mut indices, h_keep) = self.coordinate_rows(keep, &coincidence.d_self)?;
+        let (indices_drop, h_drop) = self.coordinate_rows(drop, &coincidence.d_other)?;
+        indices.extend(indices_drop);
+        let (m, nk) = (coincidence.residual.len(), h_keep.ncols());
+        let mut h = DMatrix::zeros(m, indices.len());
+        h.view_mut((0, 0), (m, nk)).copy_from(&h_keep);
+        h.view_mut((0, nk), (m, h_drop.ncols())).copy_from(&h_drop);
+        let residual = coincidence.residual;
+        let c = self.cov.gather(&indices, &indices);
+        let tolerance = DMatrix::identity(m, m) * self.params.merge_tolerance.powi(2);
+        let Some(s_inv) = (&h * c * h.transpose() + &tolerance).try_inverse() else {
+            self.skips.count("merge: singular difference covariance");
+            return Ok(false);
+        };
+        let d2 = (residual.transpose() * s_inv * &residual)[(0, 0)];
+        let gate = self.gates.gate(self.params.merge_probability, m)?;
+        if d2.is_nan() || d2 > gate {
+            return Ok(false);
+        }
+        if !self.constrain_merged(&indices, h, &residual)? {
+            return Ok(false);
+        }
+        if let Some(extension) = self.map.get(keep)?.absorbed(self.map.get(drop)?)? {
+            self.apply_extension(keep, extension)?;
+        }
+        let sightings = self.tracks.get(&drop).map_or(0, |t| t.sightings);
+        if let Some(track) = self.tracks.get_mut(&keep) {
+            track.sightings += sightings;
+        }
+        self.remove_feature(drop)?;
+        self.features_merged += 1;
+        Ok(true)
+    }
+
+    /// Which of two features is kept and which removed: `None` when they cannot be merged
+    /// (known landmarks, or both holding shared blocks).
+    fn merge_roles(&self, a: FeatureId, b: FeatureId) -> Result<Option<(FeatureId, FeatureId)>> {
+        let holds_shared =
+            |id: FeatureId| -> Result<bool> { Ok(self.map.links(id)?.iter().any(Option::is_some)) };
+        let track = |id: FeatureId| self.tracks.get(&id);
+        if [a, b]
+            .iter()
+            .any(|id| track(*id).is_some_and(|t| t.landmark_id.is_some()))
+        {
+            return Ok(None);
+        }
+        let sightings = |id: FeatureId| track(id).map_or(0, |t| t.sightings);
+        let (keep, drop) = if sightings(b) > sightings(a) {
+            (b, a)
+        } else {
+            (a, b)
+        };
+        Ok(match (holds_shared(keep)?, holds_shared(drop)?) {
+            (_, false) => Some((keep, drop)),
+            (false, true) => Some((drop, keep)),
+            (true, true) => None,
+        })
+    }
+
+    /// A Jacobian with respect to feature `id`'s coordinates as columns on its state rows:
+    /// `d B~` on the own rows and the block's columns on each shared block's rows.
+    fn coordinate_rows(
+        &self,
+        id: FeatureId,
+        d_coordinates: &DMatrix<f64>,
+    ) -> Result<(Vec<usize>, DMatrix<f64>)> {
+        let feature = self.map.get(id)?;
+        let mut indices = Vec::new();
+        let mut columns: Vec<DMatrix<f64>> = Vec::new();
+        if feature.mspace_dim() > 0 {
+            let rows = self
+                .rows
+                .get(&RowOwner::Feature(id))
+                .ok_or_else(|| Error::Invariant(format!("feature {} has no state rows", id.0)))?;
+            indices.extend_from_slice(rows);
+            columns.push(d_coordinates * feature.dual()?);
+        }
+        let coordinates = feature.coordinates();
+        for (k, link) in self.map.links(id)?.iter().enumerate() {
+            let Some(shared) = link else { continue };
+            let rows = self.rows.get(&RowOwner::Shared(*shared)).ok_or_else(|| {
+                Error::Invariant(format!("shared block {} has no state rows", shared.0))
+            })?;
+            indices.extend_from_slice(rows);
+            let width = coordinates.blocks()[k].dim();
+            columns.push(
+                d_coordinates
+                    .columns(coordinates.offset(k), width)
+                    .into_owned(),
+            );
+        }
+        let mut h = DMatrix::zeros(d_coordinates.nrows(), indices.len());
+        let mut at = 0;
+        for block in columns {
+            h.view_mut((0, at), block.shape()).copy_from(&block);
+            at += block.ncols();
+        }
+        Ok((indices, h))
+    }
+
+    /// The tight update that makes the residual zero; all or nothing (a change some feature
+    /// cannot take leaves the state as it was). Returns whether it was applied.
+    fn constrain_merged(
+        &mut self,
+        indices: &[usize],
+        mut h: DMatrix<f64>,
+        residual: &DVector<f64>,
+    ) -> Result<bool> {
+        let m = residual.len();
+        if self.params.observability_constraint {
+            h = project_out(&h, &self.cov.generators(indices));
+        }
+        let variance = MERGE_CONSTRAINT_VARIANCE + self.params.merge_tolerance.powi(2);
+        let noise = DMatrix::identity(m, m) * variance;
+        let prepared = self.cov.prepare_update(indices, &h, &noise, residual)?;
+        if self.apply_state_change(&prepared.dx).is_err() {
+            self.skips
+                .count("merge: the constraint would move a feature where it cannot go");
+            return Ok(false);
+        }
+        self.cov.commit(prepared);
+        Ok(true)
+    }
+
+    /// Removes a confirmed feature that holds no shared block: its rows leave the state
+    /// (marginalized out), its track and map entry go.
+    pub(super) fn remove_feature(&mut self, id: FeatureId) -> Result<()> {
+        if self.map.links(id)?.iter().any(Option::is_some) {
+            return Err(Error::Invariant(format!(
+                "feature {} holds a shared block and cannot be removed",
+                id.0
+            )));
+        }
+        if let Some(rows) = self.rows.remove(&RowOwner::Feature(id)) {
+            let mut dropped = vec![false; self.cov.dim()];
+            for row in rows {
+                dropped[row] = true;
+            }
+            let remap = self.cov.compact(&dropped);
+            for rows in self.rows.values_mut() {
+                for row in rows.iter_mut() {
+                    *row = remap[*row]
+                        .ok_or_else(|| Error::Invariant("a kept state row was dropped".into()))?;
+                }
+            }
+        }
+        self.map.remove(id)?;
+        if let Some(track) = self.tracks.remove(&id)
+            && let Some(landmark) = track.landmark_id
+        {
+            self.ids.remove(&landmark);
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use slam_core::nalgebra::{DMatrix, Matrix2, Vector2};
+    use slam_core::{Estimator, Observation, Pose2, Pose3};
+    use slam_sensors::models::WallObservation;
+
+    use super::super::{Decision, Ekf, EkfParams};
+
+    /// A wall seen from the origin along `y = offset`, from `x = a` to `x = b`.
+    fn sighting(offset: f64, a: f64, b: f64) -> Observation {
+        let measurement = WallObservation::from_segment(
+            Vector2::new(a, offset),
+            Vector2::new(b, offset),
+            Matrix2::new(1e-4, 0.0, 0.0, 4e-4),
+            [false, false],
+            [0.05, 0.05],
+        )
+        .unwrap();
+        Observation {
+            robot_from_sensor: Pose3::identity(),
+            measurement: Box::new(measurement),
+            landmark_id: None,
+        }
+    }
+
+    /// Two walls started from two sightings in one step, with merging on or off.
+    fn two_walls(merge: bool, sightings: [Observation; 2]) -> Ekf<Pose2> {
+        let params = EkfParams {
+            confirm_after: 1,
+            merge_duplicates: merge,
+            join_corners: false,
+            ..EkfParams::default()
+        };
+        let mut ekf = Ekf::new(Pose2::identity(), DMatrix::identity(3, 3) * 1e-4, params).unwrap();
+        ekf.apply_decisions(&sightings, vec![Decision::New, Decision::New])
+            .unwrap();
+        ekf
+    }
+
+    fn is_symmetric_psd(c: &DMatrix<f64>) -> bool {
+        let symmetric = (c - c.transpose()).amax() <= 1e-9 * c.amax().max(1.0);
+        let eigenvalues = c.clone().symmetric_eigenvalues();
+        symmetric && eigenvalues.iter().all(|&e| e > -1e-9)
+    }
+
+    /// One wall mapped twice (two overlapping sightings within their noise) becomes one wall
+    /// that covers both extents; the state loses the removed wall's rows and the covariance
+    /// stays symmetric and positive semi-definite.
+    #[test]
+    fn a_wall_mapped_twice_is_merged() {
+        let sightings = || [sighting(2.0, 0.0, 3.0), sighting(2.01, 2.0, 5.0)];
+        let kept_apart = two_walls(false, sightings());
+        assert_eq!(kept_apart.map().len(), 2);
+        let merged = two_walls(true, sightings());
+        assert_eq!(merged.features_merged(), 1);
+        assert_eq!(merged.map().len(), 1);
+        assert_eq!(merged.state_dim(), kept_apart.state_dim() - 2);
+        assert!(is_symmetric_psd(&merged.covariance()));
+        let (_, wall) = merged.map().iter().next().unwrap();
+        let slam_core::Shape::Wall { start, end } = wall.shape().unwrap() else {
+            panic!("not a wall");
+        };
+        let (lo, hi) = (start.x.min(end.x), start.x.max(end.x));
+        assert!(
+            lo < 0.05 && hi > 4.95,
+            "the kept wall covers both: {start} {end}"
+        );
+        assert!((start.y - 2.005).abs() < 0.01 && (end.y - 2.005).abs() < 0.01);
+    }
+
+    /// Two parallel walls 30 cm apart (both sides of a corridor's clutter, a wall and a
+    /// cupboard) are far outside their noise: both stay.
+    #[test]
+    fn distinct_parallel_walls_stay_apart() {
+        let ekf = two_walls(true, [sighting(2.0, 0.0, 3.0), sighting(2.3, 1.0, 4.0)]);
+        assert_eq!(ekf.features_merged(), 0);
+        assert_eq!(ekf.map().len(), 2);
+    }
+}

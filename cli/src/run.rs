@@ -109,11 +109,29 @@ fn write_stage(dir: &Path, stage: &PostProcessOutput, data: &str, plots: bool) -
     Ok(())
 }
 
+/// The map quality clause of the summary (runs with scans and walls), else empty.
+fn map_quality_clause(metrics: &RunMetrics) -> String {
+    let Some(quality) = &metrics.map_quality else {
+        return String::new();
+    };
+    let median = quality
+        .median_point_to_wall_m
+        .map_or("n/a".to_string(), |m| format!("{:.1} cm", 100.0 * m));
+    format!(
+        "; {} walls, {:.0} m, {:.1}% doubled ({:.1}% same side); scan points to walls {median} \
+         (median)",
+        quality.walls,
+        quality.wall_length_m,
+        100.0 * quality.doubled_fraction,
+        100.0 * quality.doubled_same_side_fraction
+    )
+}
+
 fn summary_line(output: &RunOutput, metrics: &RunMetrics, dir: &Path) -> String {
     let number = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
     format!(
         "{}: {} steps in {:.1} s ({:.3} ms/step); ATE {} m ({}); map error {} m; pose NEES \
-         mean {}; outputs in {}",
+         mean {}{}; outputs in {}",
         output.name,
         metrics.steps,
         metrics.wall_time_s,
@@ -122,6 +140,7 @@ fn summary_line(output: &RunOutput, metrics: &RunMetrics, dir: &Path) -> String 
         metrics.ate_against.unwrap_or("no truth"),
         number(metrics.map_error_m),
         number(metrics.nees.as_ref().map(|n| n.mean_per_dof * 3.0)),
+        map_quality_clause(metrics),
         dir.display()
     )
 }

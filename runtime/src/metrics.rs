@@ -4,15 +4,16 @@
 use std::collections::BTreeMap;
 
 use serde::Serialize;
-use slam_core::Skips;
+use slam_core::{Pose2, Shape, Skips};
 use slam_sensors::TruthKind;
 use slam_sensors::laser_odometry::LaserOdometryReport;
 
 use crate::config::Config;
 use crate::error::Result;
 use crate::eval::{
-    ChiSquareSummary, ErrorStats, MapError, TrajectoryErrors, chi_square_summary, feature_counts,
-    map_error_against_landmarks, map_error_against_truth, pose_nees,
+    ChiSquareSummary, ErrorStats, MapError, MapQuality, TrajectoryErrors, chi_square_summary,
+    confirmed, feature_counts, map_error_against_landmarks, map_error_against_truth, map_quality,
+    pose_nees, wall_segments,
 };
 use crate::frontend::FrontendCounts;
 use crate::record::UpdateTotals;
@@ -57,6 +58,9 @@ pub struct RunMetrics {
     pub nees: Option<ChiSquareSummary>,
     /// NIS of every paired observation.
     pub nis: ChiSquareSummary,
+    /// How well the wall map explains the scans and how much of it is doubled (runs with
+    /// laser scans and walls; no truth needed).
+    pub map_quality: Option<MapQuality>,
     /// Features by type and M-space dimension.
     pub features: BTreeMap<String, BTreeMap<usize, usize>>,
     /// Totals of the update reports.
@@ -141,6 +145,7 @@ impl RunMetrics {
                 Some(chi_square_summary(&nees)?)
             },
             nis: record.nis.summary(),
+            map_quality: Self::map_quality(output),
             features: feature_counts(estimator),
             updates: record.updates,
             skipped: record.skipped.clone(),
@@ -154,6 +159,40 @@ impl RunMetrics {
             unavailable,
             config: config.clone(),
         })
+    }
+
+    /// The map quality figures of the confirmed walls, the scan readings placed by the path
+    /// the map belongs to (the estimates, or a particle filter's map path); `None` without
+    /// scans or walls.
+    fn map_quality(output: &RunOutput) -> Option<MapQuality> {
+        let estimator = output.estimator.as_ref();
+        let shapes: Vec<Shape> = estimator
+            .map()
+            .iter()
+            .filter(|(id, _)| confirmed(estimator, *id))
+            .filter_map(|(_, feature)| feature.shape())
+            .collect();
+        let walls = wall_segments(&shapes);
+        let sample = &output.record.scan_sample;
+        if walls.is_empty() || sample.is_empty() {
+            return None;
+        }
+        let path: Vec<(f64, Pose2)> = match &output.map_path {
+            Some(path) => path.clone(),
+            None => output
+                .record
+                .estimates
+                .iter()
+                .map(|r| (r.time, r.pose))
+                .collect(),
+        };
+        let pose_at = |time: f64| {
+            let k = path.partition_point(|(t, _)| *t < time);
+            path.get(k)
+                .filter(|(t, _)| *t == time)
+                .map(|(_, pose)| *pose)
+        };
+        Some(map_quality(&walls, &sample.placed(pose_at)))
     }
 
     /// Features the data named (known landmark ids) are compared with the known landmarks;

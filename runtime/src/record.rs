@@ -1,6 +1,7 @@
 //! The standard record of a run: the estimate at every time step (what the trajectory
 //! outputs need), the truth and GPS fixes the data give (what the evaluation needs), and
-//! running totals of the updates. Nothing else grows with the length of the log.
+//! running totals of the updates, and a fixed-size sample of the scan readings (for the map
+//! quality figures). Nothing else grows with the length of the log.
 
 use serde::Serialize;
 use slam_core::nalgebra::{Matrix3, Vector2};
@@ -10,7 +11,9 @@ use slam_core::{Estimator, Pose2, Skips, UpdateReport};
 use slam_sensors::{Event, TimedEvent, TruthKind};
 
 use crate::error::Result;
-use crate::eval::{ChiSquareAccumulator, Record, TrajectoryErrors, path_errors, stamped};
+use crate::eval::{
+    ChiSquareAccumulator, Record, ScanSample, TrajectoryErrors, path_errors, stamped,
+};
 use crate::session::Observer;
 
 /// Totals of the estimator's update reports.
@@ -41,6 +44,8 @@ pub struct Recorder {
     pub skipped: Skips,
     /// Events processed.
     pub events: usize,
+    /// A fixed-size sample of the scan readings, for the map quality figures.
+    pub scan_sample: ScanSample,
 }
 
 impl Observer for Recorder {
@@ -54,6 +59,10 @@ impl Observer for Recorder {
         match &event.event {
             Event::GroundTruth { pose, kind } => self.truth.push((event.time, *pose, *kind)),
             Event::Gps(fix) => self.gps.push((event.time, *fix)),
+            Event::Scan {
+                scan,
+                robot_from_sensor,
+            } => self.scan_sample.add(event.time, scan, robot_from_sensor),
             _ => {}
         }
         if let Some(report) = update {

@@ -1,10 +1,11 @@
 //! Evaluation anyone can call: trajectory errors (ATE, RPE, [`trajectory`]), consistency
 //! (NEES, NIS, [`ChiSquareSummary`]) and map error ([`map_error_against_truth`],
-//! [`map_error_against_landmarks`]), as functions of plain data (the metrics of a whole run,
+//! [`map_error_against_landmarks`]) and map quality without truth ([`map_quality`]), as functions of plain data (the metrics of a whole run,
 //! `metrics.json`, are [`crate::RunMetrics`]).
 
 mod consistency;
 mod map;
+mod map_quality;
 pub mod trajectory;
 
 use std::collections::BTreeMap;
@@ -23,6 +24,10 @@ pub use consistency::{
 pub use map::{
     MapError, confirmed, coordinate_covariance, feature_counts, map_error_against_landmarks,
     map_error_against_truth, shared_dims,
+};
+pub use map_quality::{
+    DEFAULT_SAMPLE_SIZE, DOUBLED_ANGLE_DEG, DOUBLED_DISTANCE_M, MapQuality, ScanSample,
+    map_quality, wall_segments,
 };
 pub use trajectory::{AlignMode, Alignment, ErrorStats, associate, ate, umeyama};
 

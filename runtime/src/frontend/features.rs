@@ -109,6 +109,13 @@ pub struct FeaturesFrontendConfig {
     /// NEES is 2.81 with 1.0 and 2.51 with 1.25 (3 when consistent). Larger factors make the
     /// filter pessimistic; they are for experiments.
     pub simulated_noise_factor: f64,
+    /// Deviation of a real wall's distance from its straight-line model, m, added to each
+    /// wall observation's distance variance (walls are not exactly straight and flat, and
+    /// a scan's points are not exactly simultaneous). Default 0: a simulated wall is exact.
+    pub wall_model_sigma: f64,
+    /// Deviation of a real wall's direction from its model, degrees, added to each wall
+    /// observation's direction variance. Default 0.
+    pub wall_model_sigma_deg: f64,
     /// Line extractor settings (its `sigma_range` is replaced by the laser's).
     pub lines: LineExtractorParams,
     /// Pole extractor settings (its `sigma_range` is replaced by the laser's).
@@ -129,11 +136,13 @@ impl Default for FeaturesFrontendConfig {
             camera: true,
             landmarks: None,
             ignore_landmark_ids: false,
-            wall_representation: Box::new(MspaceWalls {}),
+            wall_representation: Box::new(MspaceWalls::default()),
             wall_segmentation: WallSegmentation::SplitMerge,
             prior: PriorSegmentationConfig::default(),
             sigma_range: None,
             simulated_noise_factor: 1.0,
+            wall_model_sigma: 0.0,
+            wall_model_sigma_deg: 0.0,
             lines: LineExtractorParams::default(),
             pole_extractor: PoleExtractorParams::default(),
             pole_sigma_floor: 0.01,
@@ -173,6 +182,17 @@ impl FrontendConfig for FeaturesFrontendConfig {
     /// a malformed prior file or engine settings out of range are errors before the data
     /// are read.
     fn validate(&self) -> Result<()> {
+        for (key, value) in [
+            ("wall_model_sigma", self.wall_model_sigma),
+            ("wall_model_sigma_deg", self.wall_model_sigma_deg),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(RuntimeError::setting(
+                    "frontend",
+                    format!("{key} must be a finite deviation of at least 0, got {value}"),
+                ));
+            }
+        }
         self.wall_representation
             .validate()
             .map_err(|e| RuntimeError::setting("frontend.wall_representation", e.to_string()))?;
@@ -284,6 +304,8 @@ impl FeaturesFrontend {
             let f = self.noise_factor;
             for mut segment in self.wall_segments(scan) {
                 segment.cov *= f * f;
+                segment.cov[(0, 0)] += self.config.wall_model_sigma_deg.to_radians().powi(2);
+                segment.cov[(1, 1)] += self.config.wall_model_sigma.powi(2);
                 segment.end_spacing = segment.end_spacing.map(|s| s * f);
                 match self
                     .config

@@ -29,9 +29,32 @@ pub trait WallModel: Debug + Send + Sync + dyn_clone::DynClone {
 dyn_clone::clone_trait_object!(WallModel);
 
 /// M-space walls (`slam_features::Wall`): dimensions 0, 2, 3, 4 and shared corners.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MspaceWalls {}
+///
+/// `wall_representation = "mspace"`, or a table with its settings:
+///
+/// ```
+/// use slam_runtime::Config;
+/// let text = "[frontend.wall_representation]\ntype = \"mspace\"\nmax_gap = 2.0\n";
+/// let config = Config::from_toml(text, "inline")?;
+/// # let _ = config;
+/// # Ok::<(), slam_runtime::RuntimeError>(())
+/// ```
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MspaceWalls {
+    /// Largest gap between a wall's open end and a segment still taken as that wall, m
+    /// (default [`slam_sensors::models::MAX_GAP`], 0.5: a doorway separates two walls; real
+    /// buildings do better with 2, a corridor wall kept whole across its doors).
+    pub max_gap: f64,
+}
+
+impl Default for MspaceWalls {
+    fn default() -> Self {
+        MspaceWalls {
+            max_gap: slam_sensors::models::MAX_GAP,
+        }
+    }
+}
 
 #[typetag::serde(name = "mspace")]
 impl WallModel for MspaceWalls {
@@ -40,7 +63,22 @@ impl WallModel for MspaceWalls {
         segment: &ExtractedSegment,
         sigma_range: f64,
     ) -> slam_core::Result<Box<dyn DynMeasurementModel>> {
-        Ok(Box::new(segment.to_observation(sigma_range)?))
+        Ok(Box::new(
+            segment
+                .to_observation(sigma_range)?
+                .with_max_gap(self.max_gap)?,
+        ))
+    }
+
+    fn validate(&self) -> slam_core::Result<()> {
+        if self.max_gap.is_finite() && self.max_gap >= 0.0 {
+            Ok(())
+        } else {
+            Err(slam_core::Error::InvalidArgument(format!(
+                "max_gap must be finite and at least 0, got {}",
+                self.max_gap
+            )))
+        }
     }
 }
 

@@ -19,10 +19,11 @@
 use serde::{Deserialize, Serialize};
 use slam_sensors::LaserScan;
 
-use crate::compile::{AtomKind, Prior, Priorlet};
-use crate::dual::{Dual, Scalar};
+use crate::compile::{Atom, AtomKind, Prior, Priorlet};
+use crate::dual::Sparse;
 use crate::error::{PriorError, Result};
 use crate::parser::Topology;
+use crate::window::{SparseNodes, WindowPlan};
 
 /// The readings of one scan given to the engine: bearings, measured ranges and their
 /// standard deviations, in scan order.
@@ -374,6 +375,8 @@ pub(crate) struct Problem<'a> {
     pub hi: Vec<f64>,
     /// `(first reading, topology)` of each window of `order` consecutive readings.
     pub windows: Vec<(usize, Topology)>,
+    /// What the Newton steps need of the priorlets on these windows.
+    plan: WindowPlan,
 }
 
 /// The topology a window of consecutive links sees.
@@ -421,60 +424,55 @@ impl Band {
         let (i, j) = if i >= j { (i, j) } else { (j, i) };
         &mut self.data[i * (self.b + 1) + (i - j)]
     }
-    fn get(&self, i: usize, j: usize) -> f64 {
-        let (i, j) = if i >= j { (i, j) } else { (j, i) };
-        if i - j > self.b {
-            return 0.0;
-        }
-        self.data[i * (self.b + 1) + (i - j)]
-    }
     /// Solves `A d = rhs` by banded Cholesky with `shift` added to the diagonal.
     fn solve(&self, rhs: &[f64], shift: f64) -> Option<Vec<f64>> {
         let (n, b) = (self.n, self.b);
-        let mut l = Band::new(n, b);
+        let w = b + 1;
+        // Row i of the factor L holds L[i][i - d] at l[i * w + d], as `data` does.
+        let mut l = vec![0.0; n * w];
         for j in 0..n {
-            let k0 = j.saturating_sub(b);
-            let mut s = self.get(j, j) + shift;
-            for k in k0..j {
-                s -= l.get(j, k) * l.get(j, k);
+            let mut s = self.data[j * w] + shift;
+            for k in j.saturating_sub(b)..j {
+                s -= l[j * w + j - k] * l[j * w + j - k];
             }
             if s.is_nan() || s <= 0.0 || !s.is_finite() {
                 return None;
             }
             let d = s.sqrt();
-            *l.at(j, j) = d;
+            l[j * w] = d;
             for i in j + 1..(j + b + 1).min(n) {
-                let mut s = self.get(i, j);
+                let mut s = self.data[i * w + i - j];
                 for k in i.saturating_sub(b)..j {
-                    s -= l.get(i, k) * l.get(j, k);
+                    s -= l[i * w + i - k] * l[j * w + j - k];
                 }
-                *l.at(i, j) = s / d;
+                l[i * w + i - j] = s / d;
             }
         }
         let mut y = rhs.to_vec();
         for i in 0..n {
             let mut s = y[i];
             for k in i.saturating_sub(b)..i {
-                s -= l.get(i, k) * y[k];
+                s -= l[i * w + i - k] * y[k];
             }
-            y[i] = s / l.get(i, i);
+            y[i] = s / l[i * w];
         }
         for i in (0..n).rev() {
             let mut s = y[i];
             for k in i + 1..(i + b + 1).min(n) {
-                s -= l.get(k, i) * y[k];
+                s -= l[k * w + k - i] * y[k];
             }
-            y[i] = s / l.get(i, i);
+            y[i] = s / l[i * w];
         }
         y.iter().all(|v| v.is_finite()).then_some(y)
     }
 }
 
-/// The penalty of one constraint (smallest branch) and the index of that branch.
-fn constraint_penalty(values: &[f64], branches: &[crate::compile::Atom]) -> (f64, usize) {
+/// The penalty of one constraint (smallest branch) and the index of that branch, given the
+/// value of each tape node.
+fn constraint_penalty(value: impl Fn(usize) -> f64, branches: &[Atom]) -> (f64, usize) {
     let mut best = (f64::INFINITY, 0);
     for (k, atom) in branches.iter().enumerate() {
-        let v = atom.violation(values[atom.node]);
+        let v = atom.violation(value(atom.node));
         let p = v * v;
         if p < best.0 || !best.0.is_finite() {
             best = (p, k);
@@ -488,8 +486,8 @@ impl Problem<'_> {
         2 * self.rho.len()
     }
 
-    fn local(&self, x: &[f64], start: usize) -> Vec<f64> {
-        x[2 * start..2 * (start + self.prior.order)].to_vec()
+    fn local<'x>(&self, x: &'x [f64], start: usize) -> &'x [f64] {
+        &x[2 * start..2 * (start + self.prior.order)]
     }
 
     fn local_phi(&self, start: usize) -> &[f64] {
@@ -512,17 +510,19 @@ impl Problem<'_> {
             }
             total -= mu * (a.ln() + b.ln());
         }
-        for &(start, topology) in &self.windows {
+        for (w, &(start, topology)) in self.windows.iter().enumerate() {
             let priorlet = self.prior.priorlet(topology);
             if priorlet.is_empty() {
                 continue;
             }
-            priorlet.eval(&self.local(x, start), self.local_phi(start), buffer);
+            let (local, phi) = (self.local(x, start), self.local_phi(start));
+            self.plan
+                .values(self.prior, (w, topology), local, phi, buffer);
             for &e in &priorlet.energies {
                 total += buffer[e];
             }
             for c in &priorlet.constraints {
-                total += lambda * constraint_penalty(buffer, &c.branches).0;
+                total += lambda * constraint_penalty(|k| buffer[k], &c.branches).0;
             }
         }
         total.is_finite().then_some(total)
@@ -538,7 +538,7 @@ impl Problem<'_> {
         }
         for &(start, topology) in &self.windows {
             let priorlet = self.prior.priorlet(topology);
-            priorlet.eval(&self.local(x, start), self.local_phi(start), &mut buffer);
+            priorlet.eval(self.local(x, start), self.local_phi(start), &mut buffer);
             for &e in &priorlet.energies {
                 total += buffer[e];
             }
@@ -553,11 +553,11 @@ impl Problem<'_> {
             .iter()
             .map(|&(start, topology)| {
                 let priorlet = self.prior.priorlet(topology);
-                priorlet.eval(&self.local(x, start), self.local_phi(start), &mut buffer);
+                priorlet.eval(self.local(x, start), self.local_phi(start), &mut buffer);
                 priorlet
                     .constraints
                     .iter()
-                    .map(|c| constraint_penalty(&buffer, &c.branches).0.sqrt())
+                    .map(|c| constraint_penalty(|k| buffer[k], &c.branches).0.sqrt())
                     .fold(0.0, f64::max)
             })
             .collect()
@@ -606,21 +606,21 @@ impl Problem<'_> {
         band: &mut Band,
     ) {
         let k = 2 * self.prior.order;
-        let mut buffer: Vec<Dual<N>> = Vec::new();
-        for &(start, topology) in &self.windows {
+        let mut nodes = SparseNodes::<N>::new();
+        for (w, &(start, topology)) in self.windows.iter().enumerate() {
             let priorlet = self.prior.priorlet(topology);
             if priorlet.is_empty() {
                 continue;
             }
-            let local: Vec<Dual<N>> = (0..k)
-                .map(|i| Dual::variable(x[2 * start + i], i))
-                .collect();
-            let (v, g, h) =
-                window_terms(priorlet, &local, self.local_phi(start), lambda, &mut buffer);
-            *value += v;
-            let h = convexify::<N>(&h, k, |largest| 1e-9 * largest.max(1.0));
+            let (local, phi) = (self.local(x, start), self.local_phi(start));
+            let buffer = self
+                .plan
+                .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
+            let total = window_terms(priorlet, buffer, lambda);
+            *value += total.v;
+            let h = convexify::<N>(&total.h, k, |largest| 1e-9 * largest.max(1.0));
             for i in 0..k {
-                gradient[2 * start + i] += g[i];
+                gradient[2 * start + i] += total.g[i];
                 for j in 0..=i {
                     *band.at(2 * start + i, 2 * start + j) += h[i][j];
                 }
@@ -629,35 +629,41 @@ impl Problem<'_> {
     }
 }
 
-/// Value, gradient and Hessian of a window's energies plus `lambda` times its penalties.
+/// Value, gradient and Hessian of a window's energies plus `lambda` times its penalties, from
+/// the window's tape `nodes`.
 fn window_terms<const N: usize>(
     priorlet: &Priorlet,
-    local: &[Dual<N>],
-    phi: &[f64],
+    nodes: &[Sparse<N>],
     lambda: f64,
-    buffer: &mut Vec<Dual<N>>,
-) -> (f64, [f64; N], [[f64; N]; N]) {
-    priorlet.eval(local, phi, buffer);
-    let mut total = Dual::<N>::constant(0.0);
+) -> Sparse<N> {
+    let mut total = Sparse::<N>::constant(0.0);
+    let inputs = |mask: u8| crate::dual::bits::<N>(mask);
     for &e in &priorlet.energies {
-        total = total + buffer[e];
+        let (index, count) = inputs(total.mask | nodes[e].mask);
+        total.add_assign(&nodes[e], &index[..count]);
     }
-    let values: Vec<f64> = buffer.iter().map(|d| d.v).collect();
     for c in &priorlet.constraints {
-        let (penalty, branch) = constraint_penalty(&values, &c.branches);
+        let (penalty, branch) = constraint_penalty(|k| nodes[k].v, &c.branches);
         if penalty > 0.0 {
             let atom = c.branches[branch];
-            let f = buffer[atom.node];
+            let f = &nodes[atom.node];
             let active = match atom.kind {
                 AtomKind::Equal => true,
                 AtomKind::AtMost => f.v > 0.0,
             };
             if active {
-                total = total + Dual::constant(lambda) * f * f;
+                // total + (lambda * f) * f, as duals compute it.
+                let (index, count) = inputs(f.mask);
+                let mut scaled = Sparse::constant(0.0);
+                scaled.set_mul(&Sparse::constant(lambda), f, &index[..count]);
+                let mut square = Sparse::constant(0.0);
+                square.set_mul(&scaled, f, &index[..count]);
+                let (index, count) = inputs(total.mask | f.mask);
+                total.add_assign(&square, &index[..count]);
             }
         }
     }
-    (total.v, total.g, total.h)
+    total
 }
 
 /// Eigen-decomposition of the leading `k x k` block of a symmetric matrix by cyclic Jacobi
@@ -985,9 +991,10 @@ fn build_problem<'a>(
         lo.push(alpha0[j] - half_width[j]);
         hi.push(alpha0[j] + half_width[j]);
     }
+    let phi: Vec<f64> = members.iter().map(|&i| input.phi[i]).collect();
+    let windows = windows_of(prior.order, links, m);
     Problem {
         prior,
-        phi: members.iter().map(|&i| input.phi[i]).collect(),
         rho: members.iter().map(|&i| input.rho[i]).collect(),
         w_rho: members
             .iter()
@@ -997,7 +1004,9 @@ fn build_problem<'a>(
         alpha_sigma,
         lo,
         hi,
-        windows: windows_of(prior.order, links, m),
+        plan: WindowPlan::new(prior, &windows, &phi),
+        windows,
+        phi,
     }
 }
 

@@ -7,8 +7,9 @@
 //!   for the bounds, Newton steps with backtracking. Gradients and Hessians are exact
 //!   (second-order dual numbers through the priorlet's tape). The Hessian is convexified
 //!   window by window: each priorlet window's Hessian (energies plus penalties) has its
-//!   negative eigenvalues raised to a small positive value, so the banded sum is positive
-//!   definite and is factored by a banded Cholesky in `O(n)`.
+//!   negative eigenvalues raised to a small positive value (eigen-decomposition by nalgebra's
+//!   `SymmetricEigen`), so the banded sum is positive definite and is factored by a banded
+//!   Cholesky in `O(n)`.
 //! - Outer loop (Algorithm 1): every reading in INMODEL and the strictest topology first;
 //!   while infeasible, the link with the largest penalty is relaxed (same region -> different
 //!   region -> different surface) and the readings of regions smaller than
@@ -24,6 +25,7 @@ use crate::dual::Sparse;
 use crate::error::{PriorError, Result};
 use crate::parser::Topology;
 use crate::window::{SparseNodes, WindowPlan};
+use slam_core::nalgebra::{DMatrix, SMatrix, SymmetricEigen};
 
 /// The readings of one scan given to the engine: bearings, measured ranges and their
 /// standard deviations, in scan order.
@@ -666,64 +668,39 @@ fn window_terms<const N: usize>(
     total
 }
 
-/// Eigen-decomposition of the leading `k x k` block of a symmetric matrix by cyclic Jacobi
-/// rotations: `(eigenvalues, eigenvectors as columns)`.
-pub(crate) fn jacobi_eigen<const N: usize>(
+/// Eigen-decomposition of the leading `k x k` block of a symmetric matrix `a` by nalgebra's
+/// [`SymmetricEigen`] (Householder tridiagonalization and implicit QR with Wilkinson shifts):
+/// `(eigenvalues, eigenvectors as columns)`, in no particular order; entries past `k` are
+/// zero. The entries of `a` must be finite (then the decomposition cannot fail: with no
+/// iteration limit it runs to convergence).
+pub(crate) fn symmetric_eigen<const N: usize>(
     a: &[[f64; N]; N],
     k: usize,
 ) -> ([f64; N], [[f64; N]; N]) {
-    let mut a = *a;
-    let mut v = [[0.0; N]; N];
-    for (i, row) in v.iter_mut().enumerate() {
-        row[i] = 1.0;
-    }
-    for _ in 0..50 {
-        let mut off = 0.0;
-        let mut diag = 0.0;
-        for i in 0..k {
-            diag += a[i][i] * a[i][i];
-            for j in 0..k {
-                if i != j {
-                    off += a[i][j] * a[i][j];
-                }
-            }
-        }
-        if off <= 1e-30 * diag.max(1e-300) {
-            break;
-        }
-        for p in 0..k {
-            for q in p + 1..k {
-                if a[p][q].abs() < 1e-300 {
-                    continue;
-                }
-                let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let t = if theta == 0.0 { 1.0 } else { t };
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                for r in 0..k {
-                    let (arp, arq) = (a[r][p], a[r][q]);
-                    a[r][p] = c * arp - s * arq;
-                    a[r][q] = s * arp + c * arq;
-                }
-                for r in 0..k {
-                    let (apr, aqr) = (a[p][r], a[q][r]);
-                    a[p][r] = c * apr - s * aqr;
-                    a[q][r] = s * apr + c * aqr;
-                }
-                for row in v.iter_mut().take(k) {
-                    let (vp, vq) = (row[p], row[q]);
-                    row[p] = c * vp - s * vq;
-                    row[q] = s * vp + c * vq;
-                }
-            }
-        }
-    }
     let mut values = [0.0; N];
-    for i in 0..k {
-        values[i] = a[i][i];
+    let mut vectors = [[0.0; N]; N];
+    let k = k.min(N);
+    // Fixed sizes for the window sizes of priors of order 1 to 4 (no allocation).
+    macro_rules! decompose {
+        ($matrix:expr) => {{
+            let eigen = SymmetricEigen::new($matrix);
+            for e in 0..k {
+                values[e] = eigen.eigenvalues[e];
+                for i in 0..k {
+                    vectors[i][e] = eigen.eigenvectors[(i, e)];
+                }
+            }
+        }};
     }
-    (values, v)
+    match k {
+        0 => {}
+        2 => decompose!(SMatrix::<f64, 2, 2>::from_fn(|i, j| a[i][j])),
+        4 => decompose!(SMatrix::<f64, 4, 4>::from_fn(|i, j| a[i][j])),
+        6 => decompose!(SMatrix::<f64, 6, 6>::from_fn(|i, j| a[i][j])),
+        8 => decompose!(SMatrix::<f64, 8, 8>::from_fn(|i, j| a[i][j])),
+        _ => decompose!(DMatrix::from_fn(k, k, |i, j| a[i][j])),
+    }
+    (values, vectors)
 }
 
 /// The symmetric `k x k` matrix `h` with its negative eigenvalues raised to `floor_of(largest)`
@@ -742,7 +719,7 @@ pub(crate) fn convexify<const N: usize>(
     if !m.iter().flatten().all(|v| v.is_finite()) {
         return [[0.0; N]; N];
     }
-    let (values, vectors) = jacobi_eigen(&m, k);
+    let (values, vectors) = symmetric_eigen(&m, k);
     let largest = values[..k].iter().fold(0.0_f64, |a, v| a.max(v.abs()));
     let floor = floor_of(largest);
     if values[..k].iter().all(|&v| v >= floor) {
@@ -1243,4 +1220,166 @@ pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Soluti
         fit_cost,
         objective: fit_cost - gamma * members.len() as f64,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// A random orthogonal `k x k` matrix (a product of `k` Householder reflections) in the
+    /// leading block of an `N x N` array.
+    fn orthogonal<const N: usize>(k: usize, rng: &mut ChaCha8Rng) -> [[f64; N]; N] {
+        let mut q = [[0.0; N]; N];
+        for i in 0..k {
+            q[i][i] = 1.0;
+        }
+        for _ in 0..k {
+            let v: Vec<f64> = (0..k).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let norm2: f64 = v.iter().map(|x| x * x).sum();
+            // q = (I - 2 v v^T / |v|^2) q
+            for c in 0..k {
+                let dot: f64 = (0..k).map(|r| v[r] * q[r][c]).sum();
+                for r in 0..k {
+                    q[r][c] -= 2.0 * v[r] * dot / norm2;
+                }
+            }
+        }
+        q
+    }
+
+    /// `Q diag(values) Q^T` in the leading `k x k` block.
+    fn compose<const N: usize>(q: &[[f64; N]; N], values: &[f64]) -> [[f64; N]; N] {
+        let mut a = [[0.0; N]; N];
+        for (e, &value) in values.iter().enumerate() {
+            for i in 0..values.len() {
+                for j in 0..values.len() {
+                    a[i][j] += value * q[i][e] * q[j][e];
+                }
+            }
+        }
+        a
+    }
+
+    /// The decomposition reproduces `a`, its eigenvectors are orthonormal and the entries
+    /// past `k` are zero; returns the eigenvalues, sorted.
+    fn check_decomposition<const N: usize>(a: &[[f64; N]; N], k: usize) -> Vec<f64> {
+        let (values, vectors) = symmetric_eigen(a, k);
+        let scale = a.iter().flatten().fold(1.0_f64, |m, v| m.max(v.abs()));
+        for i in 0..N {
+            for j in 0..N {
+                let recomposed: f64 = (0..k)
+                    .map(|e| values[e] * vectors[i][e] * vectors[j][e])
+                    .sum();
+                let expected = if i < k && j < k { a[i][j] } else { 0.0 };
+                assert!(
+                    (recomposed - expected).abs() < 1e-12 * scale,
+                    "k {k} ({i}, {j}): {recomposed} vs {expected}"
+                );
+                let dot: f64 = (0..N).map(|r| vectors[r][i] * vectors[r][j]).sum();
+                let identity = if i == j && i < k { 1.0 } else { 0.0 };
+                assert!(
+                    (dot - identity).abs() < 1e-12,
+                    "k {k}: V^T V ({i}, {j}) = {dot}"
+                );
+            }
+        }
+        assert!(values[k..].iter().all(|&v| v == 0.0));
+        let mut sorted = values[..k].to_vec();
+        sorted.sort_by(f64::total_cmp);
+        sorted
+    }
+
+    #[test]
+    fn eigen_decomposition_of_random_symmetric_matrices() {
+        let mut rng = ChaCha8Rng::seed_from_u64(20);
+        for _ in 0..50 {
+            // Every fixed window size, a leading block, and the general path (k = 5).
+            for k in [2, 4, 6, 8, 3, 5] {
+                let mut a = [[0.0; 8]; 8];
+                for i in 0..k {
+                    for j in 0..=i {
+                        let v = rng.random_range(-10.0..10.0);
+                        a[i][j] = v;
+                        a[j][i] = v;
+                    }
+                }
+                let values = check_decomposition(&a, k);
+                let trace: f64 = (0..k).map(|i| a[i][i]).sum();
+                assert!((values.iter().sum::<f64>() - trace).abs() < 1e-10);
+            }
+        }
+    }
+
+    #[test]
+    fn eigen_decomposition_of_known_matrices() {
+        // The second-difference matrix tridiag(-1, 2, -1) of size 4: eigenvalues
+        // 2 - 2 cos(j pi / 5), j = 1..4.
+        let mut a = [[0.0; 4]; 4];
+        for i in 0..4 {
+            a[i][i] = 2.0;
+            if i + 1 < 4 {
+                a[i][i + 1] = -1.0;
+                a[i + 1][i] = -1.0;
+            }
+        }
+        let values = check_decomposition(&a, 4);
+        for (j, v) in values.iter().enumerate() {
+            let expected = 2.0 - 2.0 * ((j + 1) as f64 * std::f64::consts::PI / 5.0).cos();
+            assert!((v - expected).abs() < 1e-14, "{values:?}");
+        }
+        // Repeated eigenvalues (a triple one and a negative one) in a random basis, and a
+        // multiple of the identity, in the leading block of a larger array.
+        let mut rng = ChaCha8Rng::seed_from_u64(22);
+        let q = orthogonal::<6>(4, &mut rng);
+        let a = compose(&q, &[2.0, -1.0, 2.0, 2.0]);
+        let values = check_decomposition(&a, 4);
+        for (v, expected) in values.iter().zip([-1.0, 2.0, 2.0, 2.0]) {
+            assert!((v - expected).abs() < 1e-13, "{values:?}");
+        }
+        let mut three = [[0.0; 6]; 6];
+        for (i, row) in three.iter_mut().enumerate() {
+            row[i] = 3.0;
+        }
+        assert_eq!(check_decomposition(&three, 6), vec![3.0; 6]);
+        // An empty block.
+        assert_eq!(symmetric_eigen(&three, 0), ([0.0; 6], [[0.0; 6]; 6]));
+    }
+
+    #[test]
+    fn convexify_raises_negative_eigenvalues_and_keeps_the_rest() {
+        let mut rng = ChaCha8Rng::seed_from_u64(23);
+        let q = orthogonal::<4>(4, &mut rng);
+        let floor_of = |largest: f64| 1e-9 * largest.max(1.0);
+        // A negative and a zero eigenvalue become the floor; the eigenvectors stay.
+        let a = compose(&q, &[5.0, 1.0, -2.0, 0.0]);
+        let c = convexify::<4>(&a, 4, floor_of);
+        let expected = compose(&q, &[5.0, 1.0, 5e-9, 5e-9]);
+        for i in 0..4 {
+            for j in 0..4 {
+                assert!((c[i][j] - expected[i][j]).abs() < 1e-13, "({i}, {j})");
+            }
+        }
+        let mut values = symmetric_eigen(&c, 4).0.to_vec();
+        values.sort_by(f64::total_cmp);
+        assert!(
+            values[0] > 0.0 && (values[0] - 5e-9).abs() < 1e-13,
+            "{values:?}"
+        );
+        // A positive definite matrix comes back as it was (symmetrized).
+        let mut b = compose(&q, &[5.0, 1.0, 2.0, 0.5]);
+        b[0][1] += 1e-3;
+        let c = convexify::<4>(&b, 4, floor_of);
+        for i in 0..4 {
+            for j in 0..4 {
+                assert_eq!(c[i][j], 0.5 * (b[i][j] + b[j][i]));
+            }
+        }
+        // A matrix with a NaN or an infinity contributes nothing.
+        b[2][3] = f64::NAN;
+        assert_eq!(convexify::<4>(&b, 4, floor_of), [[0.0; 4]; 4]);
+        b[2][3] = f64::INFINITY;
+        assert_eq!(convexify::<4>(&b, 4, floor_of), [[0.0; 4]; 4]);
+    }
 }

@@ -333,7 +333,7 @@ fn entries<const N: usize>(
     mut g: impl FnMut(usize),
     mut h: impl FnMut(usize, usize),
 ) {
-    if 2 * index.len() * index.len() >= N * N {
+    if 4 * index.len() * index.len() >= N * N {
         for i in 0..N {
             g(i);
             for j in 0..N {
@@ -464,6 +464,19 @@ impl<const N: usize> Sparse<N> {
             |i, j| {
                 self.h[i][j] = a.v * b.h[i][j] + b.v * a.h[i][j] + a.g[i] * b.g[j] + b.g[i] * a.g[j]
             },
+        );
+    }
+
+    /// `self = c * a` for a constant `c`: [`Sparse::set_mul`] of a constant and `a` (whose
+    /// terms with the constant's zero derivatives add only zeros).
+    #[inline]
+    pub fn set_scaled(&mut self, c: f64, a: &Self, index: &[usize]) {
+        self.v = c * a.v;
+        self.mask = a.mask;
+        entries::<N>(
+            index,
+            |i| self.g[i] = c * a.g[i],
+            |i, j| self.h[i][j] = c * a.h[i][j],
         );
     }
 

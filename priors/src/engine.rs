@@ -654,10 +654,11 @@ fn window_terms<const N: usize>(
                 AtomKind::AtMost => f.v > 0.0,
             };
             if active {
-                // total + (lambda * f) * f, as duals compute it.
+                // total + (lambda * f) * f, as duals compute it (lambda * f is a product by
+                // a constant: each of its entries is lambda times f's).
                 let (index, count) = inputs(f.mask);
                 let mut scaled = Sparse::constant(0.0);
-                scaled.set_mul(&Sparse::constant(lambda), f, &index[..count]);
+                scaled.set_scaled(lambda, f, &index[..count]);
                 let mut square = Sparse::constant(0.0);
                 square.set_mul(&scaled, f, &index[..count]);
                 let (index, count) = inputs(total.mask | f.mask);

@@ -9,7 +9,8 @@
 //!   window by window: each priorlet window's Hessian (energies plus penalties) has its
 //!   negative eigenvalues raised to a small positive value (eigen-decomposition by nalgebra's
 //!   `SymmetricEigen`), so the banded sum is positive definite and is factored by a banded
-//!   Cholesky in `O(n)`.
+//!   Cholesky in `O(n)`. The windows' terms are computed in parallel (rayon) and added in
+//!   window order, so the results do not depend on the number of threads.
 //! - Outer loop (Algorithm 1): every reading in INMODEL and the strictest topology first;
 //!   while infeasible, the link with the largest penalty is relaxed (same region -> different
 //!   region -> different surface) and the readings of regions smaller than
@@ -17,6 +18,7 @@
 //!   boundary by one reading while that lowers the fit cost (a small local search the source
 //!   lists as future work).
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use slam_sensors::LaserScan;
 
@@ -599,6 +601,11 @@ impl Problem<'_> {
         }
     }
 
+    /// Adds every window's energies and penalties, with its Hessian convexified
+    /// ([`convexify`]), to `value`, `gradient` and `band`. The windows are evaluated in
+    /// parallel (rayon) in chunks of [`WINDOW_CHUNK`], each into its own terms, which are then
+    /// added in window order, as a serial loop adds them: the sums are the same bit for bit
+    /// for any number of threads.
     fn add_windows<const N: usize>(
         &self,
         x: &[f64],
@@ -608,27 +615,57 @@ impl Problem<'_> {
         band: &mut Band,
     ) {
         let k = 2 * self.prior.order;
-        let mut nodes = SparseNodes::<N>::new();
-        for (w, &(start, topology)) in self.windows.iter().enumerate() {
-            let priorlet = self.prior.priorlet(topology);
-            if priorlet.is_empty() {
-                continue;
-            }
-            let (local, phi) = (self.local(x, start), self.local_phi(start));
-            let buffer = self
-                .plan
-                .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
-            let total = window_terms(priorlet, buffer, lambda);
-            *value += total.v;
-            let h = convexify::<N>(&total.h, k, |largest| 1e-9 * largest.max(1.0));
+        let terms: Vec<WindowTerms<N>> = self
+            .windows
+            .par_chunks(WINDOW_CHUNK)
+            .enumerate()
+            .flat_map_iter(|(c, chunk)| {
+                let mut nodes = SparseNodes::<N>::new();
+                let mut out = Vec::with_capacity(chunk.len());
+                for (i, &(start, topology)) in chunk.iter().enumerate() {
+                    let priorlet = self.prior.priorlet(topology);
+                    if priorlet.is_empty() {
+                        continue;
+                    }
+                    let w = c * WINDOW_CHUNK + i;
+                    let (local, phi) = (self.local(x, start), self.local_phi(start));
+                    let buffer =
+                        self.plan
+                            .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
+                    let total = window_terms(priorlet, buffer, lambda);
+                    out.push(WindowTerms {
+                        start,
+                        value: total.v,
+                        gradient: total.g,
+                        hessian: convexify::<N>(&total.h, k, |largest| 1e-9 * largest.max(1.0)),
+                    });
+                }
+                out
+            })
+            .collect();
+        for t in &terms {
+            *value += t.value;
             for i in 0..k {
-                gradient[2 * start + i] += total.g[i];
+                gradient[2 * t.start + i] += t.gradient[i];
                 for j in 0..=i {
-                    *band.at(2 * start + i, 2 * start + j) += h[i][j];
+                    *band.at(2 * t.start + i, 2 * t.start + j) += t.hessian[i][j];
                 }
             }
         }
     }
+}
+
+/// Windows per parallel task in [`Problem::add_windows`] (a window costs about a
+/// microsecond, mostly its eigen-decomposition).
+const WINDOW_CHUNK: usize = 16;
+
+/// What one window adds to the objective: its value, gradient and convexified Hessian over
+/// its `2 order` inputs, which start at `x[2 start]`.
+struct WindowTerms<const N: usize> {
+    start: usize,
+    value: f64,
+    gradient: [f64; N],
+    hessian: [[f64; N]; N],
 }
 
 /// Value, gradient and Hessian of a window's energies plus `lambda` times its penalties, from
@@ -1290,6 +1327,118 @@ mod tests {
         let mut sorted = values[..k].to_vec();
         sorted.sort_by(f64::total_cmp);
         sorted
+    }
+
+    /// The windows are evaluated in parallel and their terms added in window order: the
+    /// solution is the same bit for bit on one thread and on two.
+    #[test]
+    fn results_do_not_depend_on_the_number_of_threads() {
+        use crate::scene::{ScanSpec, Scene};
+        let spec = ScanSpec {
+            world_from_sensor: [1.7, 2.2, 0.3],
+            angle_min: -std::f64::consts::PI,
+            angle_increment: std::f64::consts::TAU / 120.0,
+            beams: 120,
+            sigma: 0.01,
+            outliers: 2,
+            max_range: 30.0,
+        };
+        let scan = Scene::rectangle(4.0, 4.0)
+            .simulate_seeded(&spec, 3)
+            .expect("valid scene");
+        let input = ScanInput::from_scan(&scan.scan, 0.01).expect("valid scan");
+        let library = crate::Library::shipped().expect("shipped priors");
+        let prior = library.compile("Rectangular prior").expect("prior");
+        let solve = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("thread pool");
+            pool.install(|| infer(&prior, &input, &Params::default()))
+                .expect("inference")
+        };
+        let (one, two) = (solve(1), solve(2));
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert!(one.feasible && one.outer_iterations > 1);
+        assert_eq!(bits(&one.rho), bits(&two.rho));
+        assert_eq!(bits(&one.alpha), bits(&two.alpha));
+        assert_eq!(one.in_model, two.in_model);
+        assert_eq!(one.links, two.links);
+        assert_eq!(one.outer_iterations, two.outer_iterations);
+        assert_eq!(
+            [one.max_violation, one.fit_cost, one.objective].map(f64::to_bits),
+            [two.max_violation, two.fit_cost, two.objective].map(f64::to_bits)
+        );
+    }
+
+    /// One Newton step's value, gradient and banded Hessian are those of a serial loop over
+    /// the windows, bit for bit, on one thread and on two.
+    #[test]
+    fn window_terms_are_added_in_window_order() {
+        let phi: Vec<f64> = (0..150).map(|k| -1.5 + 0.02 * k as f64).collect();
+        // A room corner, a gap and a wall, with a little noise.
+        let rho: Vec<f64> = phi
+            .iter()
+            .enumerate()
+            .map(|(k, &b)| {
+                let wall = if k < 60 {
+                    2.0 / b.cos()
+                } else {
+                    3.0 / b.sin().abs().max(0.3)
+                };
+                wall + 0.003 * ((k * 7919) % 13) as f64 / 13.0
+            })
+            .collect();
+        let input = ScanInput::new(phi, rho, 0.01).expect("valid scan");
+        let library = crate::Library::shipped().expect("shipped priors");
+        let prior = library.compile("Rectangular prior").expect("prior");
+        let params = Params::default();
+        let members: Vec<usize> = (0..input.len()).collect();
+        let mut links = vec![Topology::SameRegion; input.len() - 1];
+        links[59] = Topology::DifferentRegion;
+        links[100] = Topology::DifferentSurface;
+        let problem = build_problem(&prior, &input, &members, &links, &params);
+        let x: Vec<f64> = (0..problem.rho.len())
+            .flat_map(|j| [problem.rho[j] + 1e-3, problem.alpha0[j] - 1e-2])
+            .collect();
+        let lambda = 1e3;
+        // The serial loop.
+        let (n, order) = (problem.dim(), prior.order);
+        let mut value = 0.0;
+        let mut gradient = vec![0.0; n];
+        let mut band = Band::new(n, 2 * order - 1);
+        let mut nodes = SparseNodes::<4>::new();
+        for (w, &(start, topology)) in problem.windows.iter().enumerate() {
+            let priorlet = prior.priorlet(topology);
+            if priorlet.is_empty() {
+                continue;
+            }
+            let (local, phi) = (problem.local(&x, start), problem.local_phi(start));
+            let buffer = problem
+                .plan
+                .derivatives(&prior, (w, topology), local, phi, &mut nodes);
+            let total = window_terms(priorlet, buffer, lambda);
+            value += total.v;
+            let h = convexify::<4>(&total.h, 4, |largest| 1e-9 * largest.max(1.0));
+            for i in 0..4 {
+                gradient[2 * start + i] += total.g[i];
+                for j in 0..=i {
+                    *band.at(2 * start + i, 2 * start + j) += h[i][j];
+                }
+            }
+        }
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("thread pool");
+            let (mut v, mut g, mut b) = (0.0, vec![0.0; n], Band::new(n, 2 * order - 1));
+            pool.install(|| problem.add_windows::<4>(&x, lambda, &mut v, &mut g, &mut b));
+            assert_eq!(v.to_bits(), value.to_bits(), "{threads} threads");
+            assert_eq!(bits(&g), bits(&gradient), "{threads} threads");
+            assert_eq!(bits(&b.data), bits(&band.data), "{threads} threads");
+        }
     }
 
     #[test]

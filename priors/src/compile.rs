@@ -79,6 +79,55 @@ impl Op {
             Op::Abs(a) => (18, 0, a, 0),
         }
     }
+
+    /// The value of this operation on the window `x` with bearings `phi`, given the values
+    /// `nodes` of the earlier operations (a variable or bearing missing from the window is
+    /// NaN).
+    pub(crate) fn apply<S: Scalar>(&self, x: &[S], phi: &[f64], nodes: &[S]) -> S {
+        let nan = || S::constant(f64::NAN);
+        let get = |k: usize| nodes[k];
+        match *self {
+            Op::Const(c) => S::constant(c),
+            Op::Rho(k) => x.get(2 * k).copied().unwrap_or_else(nan),
+            Op::Alpha(k) => x.get(2 * k + 1).copied().unwrap_or_else(nan),
+            Op::Phi(k) => S::constant(phi.get(k).copied().unwrap_or(f64::NAN)),
+            Op::Add(a, b) => get(a) + get(b),
+            Op::Sub(a, b) => get(a) - get(b),
+            Op::Mul(a, b) => get(a) * get(b),
+            Op::Div(a, b) => get(a) / get(b),
+            Op::Neg(a) => -get(a),
+            Op::PowC(a, c) => get(a).powf(c),
+            Op::Sin(a) => get(a).sin(),
+            Op::Cos(a) => get(a).cos(),
+            Op::Tan(a) => get(a).tan(),
+            Op::Atan(a) => get(a).atan(),
+            Op::Atan2(a, b) => get(a).atan2(get(b)),
+            Op::Sqrt(a) => get(a).sqrt(),
+            Op::Exp(a) => get(a).exp(),
+            Op::Ln(a) => get(a).ln(),
+            Op::Abs(a) => get(a).abs(),
+        }
+    }
+
+    /// The earlier operations this one reads.
+    pub(crate) fn arguments(&self) -> [Option<usize>; 2] {
+        match *self {
+            Op::Const(_) | Op::Rho(_) | Op::Alpha(_) | Op::Phi(_) => [None, None],
+            Op::Add(a, b) | Op::Sub(a, b) | Op::Mul(a, b) | Op::Div(a, b) | Op::Atan2(a, b) => {
+                [Some(a), Some(b)]
+            }
+            Op::Neg(a)
+            | Op::PowC(a, _)
+            | Op::Sin(a)
+            | Op::Cos(a)
+            | Op::Tan(a)
+            | Op::Atan(a)
+            | Op::Sqrt(a)
+            | Op::Exp(a)
+            | Op::Ln(a)
+            | Op::Abs(a) => [Some(a), None],
+        }
+    }
 }
 
 /// Which relation an atom of a constraint states about its tape value `v`.
@@ -139,30 +188,8 @@ impl Priorlet {
     /// bearings `phi`, writing every node's value into `out`.
     pub fn eval<S: Scalar>(&self, x: &[S], phi: &[f64], out: &mut Vec<S>) {
         out.clear();
-        let nan = S::constant(f64::NAN);
         for op in &self.tape {
-            let get = |k: usize| out[k];
-            let value = match *op {
-                Op::Const(c) => S::constant(c),
-                Op::Rho(k) => x.get(2 * k).copied().unwrap_or(nan),
-                Op::Alpha(k) => x.get(2 * k + 1).copied().unwrap_or(nan),
-                Op::Phi(k) => S::constant(phi.get(k).copied().unwrap_or(f64::NAN)),
-                Op::Add(a, b) => get(a) + get(b),
-                Op::Sub(a, b) => get(a) - get(b),
-                Op::Mul(a, b) => get(a) * get(b),
-                Op::Div(a, b) => get(a) / get(b),
-                Op::Neg(a) => -get(a),
-                Op::PowC(a, c) => get(a).powf(c),
-                Op::Sin(a) => get(a).sin(),
-                Op::Cos(a) => get(a).cos(),
-                Op::Tan(a) => get(a).tan(),
-                Op::Atan(a) => get(a).atan(),
-                Op::Atan2(a, b) => get(a).atan2(get(b)),
-                Op::Sqrt(a) => get(a).sqrt(),
-                Op::Exp(a) => get(a).exp(),
-                Op::Ln(a) => get(a).ln(),
-                Op::Abs(a) => get(a).abs(),
-            };
+            let value = op.apply(x, phi, out);
             out.push(value);
         }
     }

@@ -7,8 +7,10 @@
 //!   for the bounds, Newton steps with backtracking. Gradients and Hessians are exact
 //!   (second-order dual numbers through the priorlet's tape). The Hessian is convexified
 //!   window by window: each priorlet window's Hessian (energies plus penalties) has its
-//!   negative eigenvalues raised to a small positive value, so the banded sum is positive
-//!   definite and is factored by a banded Cholesky in `O(n)`.
+//!   negative eigenvalues raised to a small positive value (eigen-decomposition by nalgebra's
+//!   `SymmetricEigen`), so the banded sum is positive definite and is factored by a banded
+//!   Cholesky in `O(n)`. The windows' terms are computed in parallel (rayon) and added in
+//!   window order, so the results do not depend on the number of threads.
 //! - Outer loop (Algorithm 1): every reading in INMODEL and the strictest topology first;
 //!   while infeasible, the link with the largest penalty is relaxed (same region -> different
 //!   region -> different surface) and the readings of regions smaller than
@@ -16,13 +18,16 @@
 //!   boundary by one reading while that lowers the fit cost (a small local search the source
 //!   lists as future work).
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use slam_sensors::LaserScan;
 
-use crate::compile::{AtomKind, Prior, Priorlet};
-use crate::dual::{Dual, Scalar};
+use crate::compile::{Atom, AtomKind, Prior, Priorlet};
+use crate::dual::Sparse;
 use crate::error::{PriorError, Result};
 use crate::parser::Topology;
+use crate::window::{SparseNodes, WindowPlan};
+use slam_core::nalgebra::{DMatrix, SMatrix, SymmetricEigen};
 
 /// The readings of one scan given to the engine: bearings, measured ranges and their
 /// standard deviations, in scan order.
@@ -374,6 +379,8 @@ pub(crate) struct Problem<'a> {
     pub hi: Vec<f64>,
     /// `(first reading, topology)` of each window of `order` consecutive readings.
     pub windows: Vec<(usize, Topology)>,
+    /// What the Newton steps need of the priorlets on these windows.
+    plan: WindowPlan,
 }
 
 /// The topology a window of consecutive links sees.
@@ -421,60 +428,55 @@ impl Band {
         let (i, j) = if i >= j { (i, j) } else { (j, i) };
         &mut self.data[i * (self.b + 1) + (i - j)]
     }
-    fn get(&self, i: usize, j: usize) -> f64 {
-        let (i, j) = if i >= j { (i, j) } else { (j, i) };
-        if i - j > self.b {
-            return 0.0;
-        }
-        self.data[i * (self.b + 1) + (i - j)]
-    }
     /// Solves `A d = rhs` by banded Cholesky with `shift` added to the diagonal.
     fn solve(&self, rhs: &[f64], shift: f64) -> Option<Vec<f64>> {
         let (n, b) = (self.n, self.b);
-        let mut l = Band::new(n, b);
+        let w = b + 1;
+        // Row i of the factor L holds L[i][i - d] at l[i * w + d], as `data` does.
+        let mut l = vec![0.0; n * w];
         for j in 0..n {
-            let k0 = j.saturating_sub(b);
-            let mut s = self.get(j, j) + shift;
-            for k in k0..j {
-                s -= l.get(j, k) * l.get(j, k);
+            let mut s = self.data[j * w] + shift;
+            for k in j.saturating_sub(b)..j {
+                s -= l[j * w + j - k] * l[j * w + j - k];
             }
             if s.is_nan() || s <= 0.0 || !s.is_finite() {
                 return None;
             }
             let d = s.sqrt();
-            *l.at(j, j) = d;
+            l[j * w] = d;
             for i in j + 1..(j + b + 1).min(n) {
-                let mut s = self.get(i, j);
+                let mut s = self.data[i * w + i - j];
                 for k in i.saturating_sub(b)..j {
-                    s -= l.get(i, k) * l.get(j, k);
+                    s -= l[i * w + i - k] * l[j * w + j - k];
                 }
-                *l.at(i, j) = s / d;
+                l[i * w + i - j] = s / d;
             }
         }
         let mut y = rhs.to_vec();
         for i in 0..n {
             let mut s = y[i];
             for k in i.saturating_sub(b)..i {
-                s -= l.get(i, k) * y[k];
+                s -= l[i * w + i - k] * y[k];
             }
-            y[i] = s / l.get(i, i);
+            y[i] = s / l[i * w];
         }
         for i in (0..n).rev() {
             let mut s = y[i];
             for k in i + 1..(i + b + 1).min(n) {
-                s -= l.get(k, i) * y[k];
+                s -= l[k * w + k - i] * y[k];
             }
-            y[i] = s / l.get(i, i);
+            y[i] = s / l[i * w];
         }
         y.iter().all(|v| v.is_finite()).then_some(y)
     }
 }
 
-/// The penalty of one constraint (smallest branch) and the index of that branch.
-fn constraint_penalty(values: &[f64], branches: &[crate::compile::Atom]) -> (f64, usize) {
+/// The penalty of one constraint (smallest branch) and the index of that branch, given the
+/// value of each tape node.
+fn constraint_penalty(value: impl Fn(usize) -> f64, branches: &[Atom]) -> (f64, usize) {
     let mut best = (f64::INFINITY, 0);
     for (k, atom) in branches.iter().enumerate() {
-        let v = atom.violation(values[atom.node]);
+        let v = atom.violation(value(atom.node));
         let p = v * v;
         if p < best.0 || !best.0.is_finite() {
             best = (p, k);
@@ -488,8 +490,8 @@ impl Problem<'_> {
         2 * self.rho.len()
     }
 
-    fn local(&self, x: &[f64], start: usize) -> Vec<f64> {
-        x[2 * start..2 * (start + self.prior.order)].to_vec()
+    fn local<'x>(&self, x: &'x [f64], start: usize) -> &'x [f64] {
+        &x[2 * start..2 * (start + self.prior.order)]
     }
 
     fn local_phi(&self, start: usize) -> &[f64] {
@@ -512,17 +514,19 @@ impl Problem<'_> {
             }
             total -= mu * (a.ln() + b.ln());
         }
-        for &(start, topology) in &self.windows {
+        for (w, &(start, topology)) in self.windows.iter().enumerate() {
             let priorlet = self.prior.priorlet(topology);
             if priorlet.is_empty() {
                 continue;
             }
-            priorlet.eval(&self.local(x, start), self.local_phi(start), buffer);
+            let (local, phi) = (self.local(x, start), self.local_phi(start));
+            self.plan
+                .values(self.prior, (w, topology), local, phi, buffer);
             for &e in &priorlet.energies {
                 total += buffer[e];
             }
             for c in &priorlet.constraints {
-                total += lambda * constraint_penalty(buffer, &c.branches).0;
+                total += lambda * constraint_penalty(|k| buffer[k], &c.branches).0;
             }
         }
         total.is_finite().then_some(total)
@@ -538,7 +542,7 @@ impl Problem<'_> {
         }
         for &(start, topology) in &self.windows {
             let priorlet = self.prior.priorlet(topology);
-            priorlet.eval(&self.local(x, start), self.local_phi(start), &mut buffer);
+            priorlet.eval(self.local(x, start), self.local_phi(start), &mut buffer);
             for &e in &priorlet.energies {
                 total += buffer[e];
             }
@@ -553,11 +557,11 @@ impl Problem<'_> {
             .iter()
             .map(|&(start, topology)| {
                 let priorlet = self.prior.priorlet(topology);
-                priorlet.eval(&self.local(x, start), self.local_phi(start), &mut buffer);
+                priorlet.eval(self.local(x, start), self.local_phi(start), &mut buffer);
                 priorlet
                     .constraints
                     .iter()
-                    .map(|c| constraint_penalty(&buffer, &c.branches).0.sqrt())
+                    .map(|c| constraint_penalty(|k| buffer[k], &c.branches).0.sqrt())
                     .fold(0.0, f64::max)
             })
             .collect()
@@ -597,6 +601,11 @@ impl Problem<'_> {
         }
     }
 
+    /// Adds every window's energies and penalties, with its Hessian convexified
+    /// ([`convexify`]), to `value`, `gradient` and `band`. The windows are evaluated in
+    /// parallel (rayon) in chunks of [`WINDOW_CHUNK`], each into its own terms, which are then
+    /// added in window order, as a serial loop adds them: the sums are the same bit for bit
+    /// for any number of threads.
     fn add_windows<const N: usize>(
         &self,
         x: &[f64],
@@ -606,118 +615,130 @@ impl Problem<'_> {
         band: &mut Band,
     ) {
         let k = 2 * self.prior.order;
-        let mut buffer: Vec<Dual<N>> = Vec::new();
-        for &(start, topology) in &self.windows {
-            let priorlet = self.prior.priorlet(topology);
-            if priorlet.is_empty() {
-                continue;
-            }
-            let local: Vec<Dual<N>> = (0..k)
-                .map(|i| Dual::variable(x[2 * start + i], i))
-                .collect();
-            let (v, g, h) =
-                window_terms(priorlet, &local, self.local_phi(start), lambda, &mut buffer);
-            *value += v;
-            let h = convexify::<N>(&h, k, |largest| 1e-9 * largest.max(1.0));
+        let terms: Vec<WindowTerms<N>> = self
+            .windows
+            .par_chunks(WINDOW_CHUNK)
+            .enumerate()
+            .flat_map_iter(|(c, chunk)| {
+                let mut nodes = SparseNodes::<N>::new();
+                let mut out = Vec::with_capacity(chunk.len());
+                for (i, &(start, topology)) in chunk.iter().enumerate() {
+                    let priorlet = self.prior.priorlet(topology);
+                    if priorlet.is_empty() {
+                        continue;
+                    }
+                    let w = c * WINDOW_CHUNK + i;
+                    let (local, phi) = (self.local(x, start), self.local_phi(start));
+                    let buffer =
+                        self.plan
+                            .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
+                    let total = window_terms(priorlet, buffer, lambda);
+                    out.push(WindowTerms {
+                        start,
+                        value: total.v,
+                        gradient: total.g,
+                        hessian: convexify::<N>(&total.h, k, |largest| 1e-9 * largest.max(1.0)),
+                    });
+                }
+                out
+            })
+            .collect();
+        for t in &terms {
+            *value += t.value;
             for i in 0..k {
-                gradient[2 * start + i] += g[i];
+                gradient[2 * t.start + i] += t.gradient[i];
                 for j in 0..=i {
-                    *band.at(2 * start + i, 2 * start + j) += h[i][j];
+                    *band.at(2 * t.start + i, 2 * t.start + j) += t.hessian[i][j];
                 }
             }
         }
     }
 }
 
-/// Value, gradient and Hessian of a window's energies plus `lambda` times its penalties.
+/// Windows per parallel task in [`Problem::add_windows`] (a window costs about a
+/// microsecond, mostly its eigen-decomposition).
+const WINDOW_CHUNK: usize = 16;
+
+/// What one window adds to the objective: its value, gradient and convexified Hessian over
+/// its `2 order` inputs, which start at `x[2 start]`.
+struct WindowTerms<const N: usize> {
+    start: usize,
+    value: f64,
+    gradient: [f64; N],
+    hessian: [[f64; N]; N],
+}
+
+/// Value, gradient and Hessian of a window's energies plus `lambda` times its penalties, from
+/// the window's tape `nodes`.
 fn window_terms<const N: usize>(
     priorlet: &Priorlet,
-    local: &[Dual<N>],
-    phi: &[f64],
+    nodes: &[Sparse<N>],
     lambda: f64,
-    buffer: &mut Vec<Dual<N>>,
-) -> (f64, [f64; N], [[f64; N]; N]) {
-    priorlet.eval(local, phi, buffer);
-    let mut total = Dual::<N>::constant(0.0);
+) -> Sparse<N> {
+    let mut total = Sparse::<N>::constant(0.0);
+    let inputs = |mask: u8| crate::dual::bits::<N>(mask);
     for &e in &priorlet.energies {
-        total = total + buffer[e];
+        let (index, count) = inputs(total.mask | nodes[e].mask);
+        total.add_assign(&nodes[e], &index[..count]);
     }
-    let values: Vec<f64> = buffer.iter().map(|d| d.v).collect();
     for c in &priorlet.constraints {
-        let (penalty, branch) = constraint_penalty(&values, &c.branches);
+        let (penalty, branch) = constraint_penalty(|k| nodes[k].v, &c.branches);
         if penalty > 0.0 {
             let atom = c.branches[branch];
-            let f = buffer[atom.node];
+            let f = &nodes[atom.node];
             let active = match atom.kind {
                 AtomKind::Equal => true,
                 AtomKind::AtMost => f.v > 0.0,
             };
             if active {
-                total = total + Dual::constant(lambda) * f * f;
+                // total + (lambda * f) * f, as duals compute it (lambda * f is a product by
+                // a constant: each of its entries is lambda times f's).
+                let (index, count) = inputs(f.mask);
+                let mut scaled = Sparse::constant(0.0);
+                scaled.set_scaled(lambda, f, &index[..count]);
+                let mut square = Sparse::constant(0.0);
+                square.set_mul(&scaled, f, &index[..count]);
+                let (index, count) = inputs(total.mask | f.mask);
+                total.add_assign(&square, &index[..count]);
             }
         }
     }
-    (total.v, total.g, total.h)
+    total
 }
 
-/// Eigen-decomposition of the leading `k x k` block of a symmetric matrix by cyclic Jacobi
-/// rotations: `(eigenvalues, eigenvectors as columns)`.
-pub(crate) fn jacobi_eigen<const N: usize>(
+/// Eigen-decomposition of the leading `k x k` block of a symmetric matrix `a` by nalgebra's
+/// [`SymmetricEigen`] (Householder tridiagonalization and implicit QR with Wilkinson shifts):
+/// `(eigenvalues, eigenvectors as columns)`, in no particular order; entries past `k` are
+/// zero. The entries of `a` must be finite (then the decomposition cannot fail: with no
+/// iteration limit it runs to convergence).
+pub(crate) fn symmetric_eigen<const N: usize>(
     a: &[[f64; N]; N],
     k: usize,
 ) -> ([f64; N], [[f64; N]; N]) {
-    let mut a = *a;
-    let mut v = [[0.0; N]; N];
-    for (i, row) in v.iter_mut().enumerate() {
-        row[i] = 1.0;
-    }
-    for _ in 0..50 {
-        let mut off = 0.0;
-        let mut diag = 0.0;
-        for i in 0..k {
-            diag += a[i][i] * a[i][i];
-            for j in 0..k {
-                if i != j {
-                    off += a[i][j] * a[i][j];
-                }
-            }
-        }
-        if off <= 1e-30 * diag.max(1e-300) {
-            break;
-        }
-        for p in 0..k {
-            for q in p + 1..k {
-                if a[p][q].abs() < 1e-300 {
-                    continue;
-                }
-                let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let t = if theta == 0.0 { 1.0 } else { t };
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                for r in 0..k {
-                    let (arp, arq) = (a[r][p], a[r][q]);
-                    a[r][p] = c * arp - s * arq;
-                    a[r][q] = s * arp + c * arq;
-                }
-                for r in 0..k {
-                    let (apr, aqr) = (a[p][r], a[q][r]);
-                    a[p][r] = c * apr - s * aqr;
-                    a[q][r] = s * apr + c * aqr;
-                }
-                for row in v.iter_mut().take(k) {
-                    let (vp, vq) = (row[p], row[q]);
-                    row[p] = c * vp - s * vq;
-                    row[q] = s * vp + c * vq;
-                }
-            }
-        }
-    }
     let mut values = [0.0; N];
-    for i in 0..k {
-        values[i] = a[i][i];
+    let mut vectors = [[0.0; N]; N];
+    let k = k.min(N);
+    // Fixed sizes for the window sizes of priors of order 1 to 4 (no allocation).
+    macro_rules! decompose {
+        ($matrix:expr) => {{
+            let eigen = SymmetricEigen::new($matrix);
+            for e in 0..k {
+                values[e] = eigen.eigenvalues[e];
+                for i in 0..k {
+                    vectors[i][e] = eigen.eigenvectors[(i, e)];
+                }
+            }
+        }};
     }
-    (values, v)
+    match k {
+        0 => {}
+        2 => decompose!(SMatrix::<f64, 2, 2>::from_fn(|i, j| a[i][j])),
+        4 => decompose!(SMatrix::<f64, 4, 4>::from_fn(|i, j| a[i][j])),
+        6 => decompose!(SMatrix::<f64, 6, 6>::from_fn(|i, j| a[i][j])),
+        8 => decompose!(SMatrix::<f64, 8, 8>::from_fn(|i, j| a[i][j])),
+        _ => decompose!(DMatrix::from_fn(k, k, |i, j| a[i][j])),
+    }
+    (values, vectors)
 }
 
 /// The symmetric `k x k` matrix `h` with its negative eigenvalues raised to `floor_of(largest)`
@@ -736,7 +757,7 @@ pub(crate) fn convexify<const N: usize>(
     if !m.iter().flatten().all(|v| v.is_finite()) {
         return [[0.0; N]; N];
     }
-    let (values, vectors) = jacobi_eigen(&m, k);
+    let (values, vectors) = symmetric_eigen(&m, k);
     let largest = values[..k].iter().fold(0.0_f64, |a, v| a.max(v.abs()));
     let floor = floor_of(largest);
     if values[..k].iter().all(|&v| v >= floor) {
@@ -985,9 +1006,10 @@ fn build_problem<'a>(
         lo.push(alpha0[j] - half_width[j]);
         hi.push(alpha0[j] + half_width[j]);
     }
+    let phi: Vec<f64> = members.iter().map(|&i| input.phi[i]).collect();
+    let windows = windows_of(prior.order, links, m);
     Problem {
         prior,
-        phi: members.iter().map(|&i| input.phi[i]).collect(),
         rho: members.iter().map(|&i| input.rho[i]).collect(),
         w_rho: members
             .iter()
@@ -997,7 +1019,9 @@ fn build_problem<'a>(
         alpha_sigma,
         lo,
         hi,
-        windows: windows_of(prior.order, links, m),
+        plan: WindowPlan::new(prior, &windows, &phi),
+        windows,
+        phi,
     }
 }
 
@@ -1234,4 +1258,278 @@ pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Soluti
         fit_cost,
         objective: fit_cost - gamma * members.len() as f64,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// A random orthogonal `k x k` matrix (a product of `k` Householder reflections) in the
+    /// leading block of an `N x N` array.
+    fn orthogonal<const N: usize>(k: usize, rng: &mut ChaCha8Rng) -> [[f64; N]; N] {
+        let mut q = [[0.0; N]; N];
+        for i in 0..k {
+            q[i][i] = 1.0;
+        }
+        for _ in 0..k {
+            let v: Vec<f64> = (0..k).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let norm2: f64 = v.iter().map(|x| x * x).sum();
+            // q = (I - 2 v v^T / |v|^2) q
+            for c in 0..k {
+                let dot: f64 = (0..k).map(|r| v[r] * q[r][c]).sum();
+                for r in 0..k {
+                    q[r][c] -= 2.0 * v[r] * dot / norm2;
+                }
+            }
+        }
+        q
+    }
+
+    /// `Q diag(values) Q^T` in the leading `k x k` block.
+    fn compose<const N: usize>(q: &[[f64; N]; N], values: &[f64]) -> [[f64; N]; N] {
+        let mut a = [[0.0; N]; N];
+        for (e, &value) in values.iter().enumerate() {
+            for i in 0..values.len() {
+                for j in 0..values.len() {
+                    a[i][j] += value * q[i][e] * q[j][e];
+                }
+            }
+        }
+        a
+    }
+
+    /// The decomposition reproduces `a`, its eigenvectors are orthonormal and the entries
+    /// past `k` are zero; returns the eigenvalues, sorted.
+    fn check_decomposition<const N: usize>(a: &[[f64; N]; N], k: usize) -> Vec<f64> {
+        let (values, vectors) = symmetric_eigen(a, k);
+        let scale = a.iter().flatten().fold(1.0_f64, |m, v| m.max(v.abs()));
+        for i in 0..N {
+            for j in 0..N {
+                let recomposed: f64 = (0..k)
+                    .map(|e| values[e] * vectors[i][e] * vectors[j][e])
+                    .sum();
+                let expected = if i < k && j < k { a[i][j] } else { 0.0 };
+                assert!(
+                    (recomposed - expected).abs() < 1e-12 * scale,
+                    "k {k} ({i}, {j}): {recomposed} vs {expected}"
+                );
+                let dot: f64 = (0..N).map(|r| vectors[r][i] * vectors[r][j]).sum();
+                let identity = if i == j && i < k { 1.0 } else { 0.0 };
+                assert!(
+                    (dot - identity).abs() < 1e-12,
+                    "k {k}: V^T V ({i}, {j}) = {dot}"
+                );
+            }
+        }
+        assert!(values[k..].iter().all(|&v| v == 0.0));
+        let mut sorted = values[..k].to_vec();
+        sorted.sort_by(f64::total_cmp);
+        sorted
+    }
+
+    /// The windows are evaluated in parallel and their terms added in window order: the
+    /// solution is the same bit for bit on one thread and on two.
+    #[test]
+    fn results_do_not_depend_on_the_number_of_threads() {
+        use crate::scene::{ScanSpec, Scene};
+        let spec = ScanSpec {
+            world_from_sensor: [1.7, 2.2, 0.3],
+            angle_min: -std::f64::consts::PI,
+            angle_increment: std::f64::consts::TAU / 120.0,
+            beams: 120,
+            sigma: 0.01,
+            outliers: 2,
+            max_range: 30.0,
+        };
+        let scan = Scene::rectangle(4.0, 4.0)
+            .simulate_seeded(&spec, 3)
+            .expect("valid scene");
+        let input = ScanInput::from_scan(&scan.scan, 0.01).expect("valid scan");
+        let library = crate::Library::shipped().expect("shipped priors");
+        let prior = library.compile("Rectangular prior").expect("prior");
+        let solve = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("thread pool");
+            pool.install(|| infer(&prior, &input, &Params::default()))
+                .expect("inference")
+        };
+        let (one, two) = (solve(1), solve(2));
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert!(one.feasible && one.outer_iterations > 1);
+        assert_eq!(bits(&one.rho), bits(&two.rho));
+        assert_eq!(bits(&one.alpha), bits(&two.alpha));
+        assert_eq!(one.in_model, two.in_model);
+        assert_eq!(one.links, two.links);
+        assert_eq!(one.outer_iterations, two.outer_iterations);
+        assert_eq!(
+            [one.max_violation, one.fit_cost, one.objective].map(f64::to_bits),
+            [two.max_violation, two.fit_cost, two.objective].map(f64::to_bits)
+        );
+    }
+
+    /// One Newton step's value, gradient and banded Hessian are those of a serial loop over
+    /// the windows, bit for bit, on one thread and on two.
+    #[test]
+    fn window_terms_are_added_in_window_order() {
+        let phi: Vec<f64> = (0..150).map(|k| -1.5 + 0.02 * k as f64).collect();
+        // A room corner, a gap and a wall, with a little noise.
+        let rho: Vec<f64> = phi
+            .iter()
+            .enumerate()
+            .map(|(k, &b)| {
+                let wall = if k < 60 {
+                    2.0 / b.cos()
+                } else {
+                    3.0 / b.sin().abs().max(0.3)
+                };
+                wall + 0.003 * ((k * 7919) % 13) as f64 / 13.0
+            })
+            .collect();
+        let input = ScanInput::new(phi, rho, 0.01).expect("valid scan");
+        let library = crate::Library::shipped().expect("shipped priors");
+        let prior = library.compile("Rectangular prior").expect("prior");
+        let params = Params::default();
+        let members: Vec<usize> = (0..input.len()).collect();
+        let mut links = vec![Topology::SameRegion; input.len() - 1];
+        links[59] = Topology::DifferentRegion;
+        links[100] = Topology::DifferentSurface;
+        let problem = build_problem(&prior, &input, &members, &links, &params);
+        let x: Vec<f64> = (0..problem.rho.len())
+            .flat_map(|j| [problem.rho[j] + 1e-3, problem.alpha0[j] - 1e-2])
+            .collect();
+        let lambda = 1e3;
+        // The serial loop.
+        let (n, order) = (problem.dim(), prior.order);
+        let mut value = 0.0;
+        let mut gradient = vec![0.0; n];
+        let mut band = Band::new(n, 2 * order - 1);
+        let mut nodes = SparseNodes::<4>::new();
+        for (w, &(start, topology)) in problem.windows.iter().enumerate() {
+            let priorlet = prior.priorlet(topology);
+            if priorlet.is_empty() {
+                continue;
+            }
+            let (local, phi) = (problem.local(&x, start), problem.local_phi(start));
+            let buffer = problem
+                .plan
+                .derivatives(&prior, (w, topology), local, phi, &mut nodes);
+            let total = window_terms(priorlet, buffer, lambda);
+            value += total.v;
+            let h = convexify::<4>(&total.h, 4, |largest| 1e-9 * largest.max(1.0));
+            for i in 0..4 {
+                gradient[2 * start + i] += total.g[i];
+                for j in 0..=i {
+                    *band.at(2 * start + i, 2 * start + j) += h[i][j];
+                }
+            }
+        }
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("thread pool");
+            let (mut v, mut g, mut b) = (0.0, vec![0.0; n], Band::new(n, 2 * order - 1));
+            pool.install(|| problem.add_windows::<4>(&x, lambda, &mut v, &mut g, &mut b));
+            assert_eq!(v.to_bits(), value.to_bits(), "{threads} threads");
+            assert_eq!(bits(&g), bits(&gradient), "{threads} threads");
+            assert_eq!(bits(&b.data), bits(&band.data), "{threads} threads");
+        }
+    }
+
+    #[test]
+    fn eigen_decomposition_of_random_symmetric_matrices() {
+        let mut rng = ChaCha8Rng::seed_from_u64(20);
+        for _ in 0..50 {
+            // Every fixed window size, a leading block, and the general path (k = 5).
+            for k in [2, 4, 6, 8, 3, 5] {
+                let mut a = [[0.0; 8]; 8];
+                for i in 0..k {
+                    for j in 0..=i {
+                        let v = rng.random_range(-10.0..10.0);
+                        a[i][j] = v;
+                        a[j][i] = v;
+                    }
+                }
+                let values = check_decomposition(&a, k);
+                let trace: f64 = (0..k).map(|i| a[i][i]).sum();
+                assert!((values.iter().sum::<f64>() - trace).abs() < 1e-10);
+            }
+        }
+    }
+
+    #[test]
+    fn eigen_decomposition_of_known_matrices() {
+        // The second-difference matrix tridiag(-1, 2, -1) of size 4: eigenvalues
+        // 2 - 2 cos(j pi / 5), j = 1..4.
+        let mut a = [[0.0; 4]; 4];
+        for i in 0..4 {
+            a[i][i] = 2.0;
+            if i + 1 < 4 {
+                a[i][i + 1] = -1.0;
+                a[i + 1][i] = -1.0;
+            }
+        }
+        let values = check_decomposition(&a, 4);
+        for (j, v) in values.iter().enumerate() {
+            let expected = 2.0 - 2.0 * ((j + 1) as f64 * std::f64::consts::PI / 5.0).cos();
+            assert!((v - expected).abs() < 1e-14, "{values:?}");
+        }
+        // Repeated eigenvalues (a triple one and a negative one) in a random basis, and a
+        // multiple of the identity, in the leading block of a larger array.
+        let mut rng = ChaCha8Rng::seed_from_u64(22);
+        let q = orthogonal::<6>(4, &mut rng);
+        let a = compose(&q, &[2.0, -1.0, 2.0, 2.0]);
+        let values = check_decomposition(&a, 4);
+        for (v, expected) in values.iter().zip([-1.0, 2.0, 2.0, 2.0]) {
+            assert!((v - expected).abs() < 1e-13, "{values:?}");
+        }
+        let mut three = [[0.0; 6]; 6];
+        for (i, row) in three.iter_mut().enumerate() {
+            row[i] = 3.0;
+        }
+        assert_eq!(check_decomposition(&three, 6), vec![3.0; 6]);
+        // An empty block.
+        assert_eq!(symmetric_eigen(&three, 0), ([0.0; 6], [[0.0; 6]; 6]));
+    }
+
+    #[test]
+    fn convexify_raises_negative_eigenvalues_and_keeps_the_rest() {
+        let mut rng = ChaCha8Rng::seed_from_u64(23);
+        let q = orthogonal::<4>(4, &mut rng);
+        let floor_of = |largest: f64| 1e-9 * largest.max(1.0);
+        // A negative and a zero eigenvalue become the floor; the eigenvectors stay.
+        let a = compose(&q, &[5.0, 1.0, -2.0, 0.0]);
+        let c = convexify::<4>(&a, 4, floor_of);
+        let expected = compose(&q, &[5.0, 1.0, 5e-9, 5e-9]);
+        for i in 0..4 {
+            for j in 0..4 {
+                assert!((c[i][j] - expected[i][j]).abs() < 1e-13, "({i}, {j})");
+            }
+        }
+        let mut values = symmetric_eigen(&c, 4).0.to_vec();
+        values.sort_by(f64::total_cmp);
+        assert!(
+            values[0] > 0.0 && (values[0] - 5e-9).abs() < 1e-13,
+            "{values:?}"
+        );
+        // A positive definite matrix comes back as it was (symmetrized).
+        let mut b = compose(&q, &[5.0, 1.0, 2.0, 0.5]);
+        b[0][1] += 1e-3;
+        let c = convexify::<4>(&b, 4, floor_of);
+        for i in 0..4 {
+            for j in 0..4 {
+                assert_eq!(c[i][j], 0.5 * (b[i][j] + b[j][i]));
+            }
+        }
+        // A matrix with a NaN or an infinity contributes nothing.
+        b[2][3] = f64::NAN;
+        assert_eq!(convexify::<4>(&b, 4, floor_of), [[0.0; 4]; 4]);
+        b[2][3] = f64::INFINITY;
+        assert_eq!(convexify::<4>(&b, 4, floor_of), [[0.0; 4]; 4]);
+    }
 }

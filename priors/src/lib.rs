@@ -42,6 +42,7 @@ pub mod error;
 pub mod lexer;
 pub mod parser;
 pub mod scene;
+mod window;
 
 pub use compile::{Library, MAX_ORDER, Prior, SHIPPED, parse_prior};
 pub use dof::{Dof, analyze};

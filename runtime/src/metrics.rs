@@ -12,10 +12,12 @@ use crate::config::Config;
 use crate::error::Result;
 use crate::eval::{
     ChiSquareSummary, ErrorStats, MapError, TrajectoryErrors, chi_square_summary, feature_counts,
-    map_error_against_landmarks, map_error_against_truth, pose_nees,
+    map_error_against_landmarks, map_error_against_truth, pose_nees, singular_steps,
 };
 use crate::frontend::FrontendCounts;
+use crate::health::Divergence;
 use crate::record::UpdateTotals;
+use crate::run::InputReport;
 use crate::run::RunOutput;
 
 /// Everything in `metrics.json`.
@@ -25,6 +27,14 @@ pub struct RunMetrics {
     pub data: String,
     /// The estimator's name.
     pub estimator: &'static str,
+    /// `"complete"`, `"interrupted"` (stopped before the end of the data, e.g. by Ctrl-C: the
+    /// outputs are those of the steps run) or `"diverged"` (the filter diverged: see
+    /// `divergence`).
+    pub status: &'static str,
+    /// The time of the last event processed, when the run was interrupted.
+    pub interrupted_at: Option<f64>,
+    /// Where and why the filter diverged, if it did.
+    pub divergence: Option<Divergence>,
     /// The `[data] seed`.
     pub seed: u64,
     /// Time steps with an estimate.
@@ -53,10 +63,17 @@ pub struct RunMetrics {
     pub map_error_unaligned_m: Option<f64>,
     /// The map error in detail.
     pub map_error: Option<MapError>,
-    /// Robot pose NEES (3 dof) at every step with a true pose.
+    /// Robot pose NEES (3 dof) at every step with a true pose whose covariance is not
+    /// singular (`null` with the reason in `unavailable` when there is none).
     pub nees: Option<ChiSquareSummary>,
-    /// NIS of every paired observation.
-    pub nis: ChiSquareSummary,
+    /// Where the covariance of the NEES comes from: `"gaussian"` or `"particle cloud"`.
+    pub nees_covariance: &'static str,
+    /// Steps with a true pose left out of the NEES because their covariance is singular (a
+    /// pose known exactly; a collapsed particle cloud).
+    pub nees_singular_steps: usize,
+    /// NIS of every paired observation (`null` with the reason in `unavailable` when the
+    /// estimator reported none).
+    pub nis: Option<ChiSquareSummary>,
     /// Features by type and M-space dimension.
     pub features: BTreeMap<String, BTreeMap<usize, usize>>,
     /// Totals of the update reports.
@@ -65,6 +82,9 @@ pub struct RunMetrics {
     pub skipped: Skips,
     /// What the front-end produced and dropped.
     pub frontend: FrontendCounts,
+    /// What the data reader skipped (lines by first word, impossible readings by reason) and
+    /// its warnings.
+    pub input: InputReport,
     /// The matches of `[data.laser_odometry]`.
     pub laser_odometry: Option<LaserOdometryReportView>,
     /// The figures of the post-processing stages, by name.
@@ -106,10 +126,33 @@ impl RunMetrics {
             "map_error",
             Self::map_error(output, trajectory.as_ref()),
         );
-        let nees: Vec<(f64, usize)> = pose_nees(&record.estimates, &record.true_poses())
+        let truth = record.true_poses();
+        let nees: Vec<(f64, usize)> = pose_nees(&record.estimates, &truth)
             .into_iter()
             .map(|(_, n)| (n, 3))
             .collect();
+        let nees_singular_steps = singular_steps(&record.estimates, &truth);
+        if nees.is_empty() && nees_singular_steps > 0 {
+            unavailable.insert(
+                "nees",
+                format!(
+                    "the pose covariance is singular at all {nees_singular_steps} steps with a \
+                     true pose ({})",
+                    estimator.covariance_source()
+                ),
+            );
+        }
+        let nis = record.nis.summary();
+        let updates = record.updates.associated + record.updates.new_features;
+        if nis.count == 0 && updates > 0 {
+            unavailable.insert(
+                "nis",
+                format!(
+                    "the {} estimator reported no innovation for its {updates} used observations",
+                    estimator.name()
+                ),
+            );
+        }
         let map_path_ate_rmse_m = match &output.map_path {
             Some(path) => available(&mut unavailable, "map_path_ate", record.path_errors(path))
                 .map(|t| t.ate_rmse_m),
@@ -119,6 +162,9 @@ impl RunMetrics {
         Ok(RunMetrics {
             data: output.name.clone(),
             estimator: estimator.name(),
+            status: status(output),
+            interrupted_at: output.interrupted_at,
+            divergence: output.divergence.clone(),
             seed: config.data.seed,
             steps,
             events: record.events,
@@ -140,11 +186,14 @@ impl RunMetrics {
             } else {
                 Some(chi_square_summary(&nees)?)
             },
-            nis: record.nis.summary(),
+            nees_covariance: estimator.covariance_source(),
+            nees_singular_steps,
+            nis: (nis.count > 0).then_some(nis),
             features: feature_counts(estimator),
             updates: record.updates,
             skipped: record.skipped.clone(),
             frontend: output.frontend.clone(),
+            input: output.input.clone(),
             laser_odometry: output.laser_odometry.as_ref().map(Into::into),
             postprocess: output
                 .postprocess
@@ -185,6 +234,17 @@ impl RunMetrics {
             })
         };
         Ok(error.filter(|m| m.count > 0))
+    }
+}
+
+/// The status of a run: interrupted, diverged or complete.
+fn status(output: &RunOutput) -> &'static str {
+    if output.interrupted_at.is_some() {
+        "interrupted"
+    } else if output.divergence.is_some() {
+        "diverged"
+    } else {
+        "complete"
     }
 }
 

@@ -126,33 +126,7 @@ impl RunMetrics {
             "map_error",
             Self::map_error(output, trajectory.as_ref()),
         );
-        let truth = record.true_poses();
-        let nees: Vec<(f64, usize)> = pose_nees(&record.estimates, &truth)
-            .into_iter()
-            .map(|(_, n)| (n, 3))
-            .collect();
-        let nees_singular_steps = singular_steps(&record.estimates, &truth);
-        if nees.is_empty() && nees_singular_steps > 0 {
-            unavailable.insert(
-                "nees",
-                format!(
-                    "the pose covariance is singular at all {nees_singular_steps} steps with a \
-                     true pose ({})",
-                    estimator.covariance_source()
-                ),
-            );
-        }
-        let nis = record.nis.summary();
-        let updates = record.updates.associated + record.updates.new_features;
-        if nis.count == 0 && updates > 0 {
-            unavailable.insert(
-                "nis",
-                format!(
-                    "the {} estimator reported no innovation for its {updates} used observations",
-                    estimator.name()
-                ),
-            );
-        }
+        let consistency = Consistency::of(output, &mut unavailable)?;
         let map_path_ate_rmse_m = match &output.map_path {
             Some(path) => available(&mut unavailable, "map_path_ate", record.path_errors(path))
                 .map(|t| t.ate_rmse_m),
@@ -181,14 +155,10 @@ impl RunMetrics {
                 .as_ref()
                 .map(|truth| map_error_against_truth(estimator, &truth.shapes(), None).rms_m),
             map_error,
-            nees: if nees.is_empty() {
-                None
-            } else {
-                Some(chi_square_summary(&nees)?)
-            },
+            nees: consistency.nees,
             nees_covariance: estimator.covariance_source(),
-            nees_singular_steps,
-            nis: (nis.count > 0).then_some(nis),
+            nees_singular_steps: consistency.singular_steps,
+            nis: consistency.nis,
             features: feature_counts(estimator),
             updates: record.updates,
             skipped: record.skipped.clone(),
@@ -234,6 +204,56 @@ impl RunMetrics {
             })
         };
         Ok(error.filter(|m| m.count > 0))
+    }
+}
+
+/// NEES and NIS of a run, with the reasons of those that are missing.
+struct Consistency {
+    nees: Option<ChiSquareSummary>,
+    singular_steps: usize,
+    nis: Option<ChiSquareSummary>,
+}
+
+impl Consistency {
+    fn of(output: &RunOutput, unavailable: &mut BTreeMap<&'static str, String>) -> Result<Self> {
+        let record = &output.record;
+        let estimator = output.estimator.as_ref();
+        let truth = record.true_poses();
+        let nees: Vec<(f64, usize)> = pose_nees(&record.estimates, &truth)
+            .into_iter()
+            .map(|(_, n)| (n, 3))
+            .collect();
+        let nees_singular_steps = singular_steps(&record.estimates, &truth);
+        if nees.is_empty() && nees_singular_steps > 0 {
+            unavailable.insert(
+                "nees",
+                format!(
+                    "the pose covariance is singular at all {nees_singular_steps} steps with a \
+                     true pose ({})",
+                    estimator.covariance_source()
+                ),
+            );
+        }
+        let nis = record.nis.summary();
+        let updates = record.updates.associated + record.updates.new_features;
+        if nis.count == 0 && updates > 0 {
+            unavailable.insert(
+                "nis",
+                format!(
+                    "the {} estimator reported no innovation for its {updates} used observations",
+                    estimator.name()
+                ),
+            );
+        }
+        Ok(Consistency {
+            nees: if nees.is_empty() {
+                None
+            } else {
+                Some(chi_square_summary(&nees)?)
+            },
+            singular_steps: nees_singular_steps,
+            nis: (nis.count > 0).then_some(nis),
+        })
     }
 }
 

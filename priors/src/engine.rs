@@ -17,6 +17,7 @@
 //!   lists as future work).
 
 use serde::{Deserialize, Serialize};
+use slam_core::nalgebra::{DMatrix, SymmetricEigen};
 use slam_sensors::LaserScan;
 
 use crate::compile::{AtomKind, Prior, Priorlet};
@@ -660,66 +661,6 @@ fn window_terms<const N: usize>(
     (total.v, total.g, total.h)
 }
 
-/// Eigen-decomposition of the leading `k x k` block of a symmetric matrix by cyclic Jacobi
-/// rotations: `(eigenvalues, eigenvectors as columns)`.
-pub(crate) fn jacobi_eigen<const N: usize>(
-    a: &[[f64; N]; N],
-    k: usize,
-) -> ([f64; N], [[f64; N]; N]) {
-    let mut a = *a;
-    let mut v = [[0.0; N]; N];
-    for (i, row) in v.iter_mut().enumerate() {
-        row[i] = 1.0;
-    }
-    for _ in 0..50 {
-        let mut off = 0.0;
-        let mut diag = 0.0;
-        for i in 0..k {
-            diag += a[i][i] * a[i][i];
-            for j in 0..k {
-                if i != j {
-                    off += a[i][j] * a[i][j];
-                }
-            }
-        }
-        if off <= 1e-30 * diag.max(1e-300) {
-            break;
-        }
-        for p in 0..k {
-            for q in p + 1..k {
-                if a[p][q].abs() < 1e-300 {
-                    continue;
-                }
-                let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let t = if theta == 0.0 { 1.0 } else { t };
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                for r in 0..k {
-                    let (arp, arq) = (a[r][p], a[r][q]);
-                    a[r][p] = c * arp - s * arq;
-                    a[r][q] = s * arp + c * arq;
-                }
-                for r in 0..k {
-                    let (apr, aqr) = (a[p][r], a[q][r]);
-                    a[p][r] = c * apr - s * aqr;
-                    a[q][r] = s * apr + c * aqr;
-                }
-                for row in v.iter_mut().take(k) {
-                    let (vp, vq) = (row[p], row[q]);
-                    row[p] = c * vp - s * vq;
-                    row[q] = s * vp + c * vq;
-                }
-            }
-        }
-    }
-    let mut values = [0.0; N];
-    for i in 0..k {
-        values[i] = a[i][i];
-    }
-    (values, v)
-}
-
 /// The symmetric `k x k` matrix `h` with its negative eigenvalues raised to `floor_of(largest)`
 /// (Algorithm 2, line 12: "convexify").
 pub(crate) fn convexify<const N: usize>(
@@ -736,10 +677,17 @@ pub(crate) fn convexify<const N: usize>(
     if !m.iter().flatten().all(|v| v.is_finite()) {
         return [[0.0; N]; N];
     }
-    let (values, vectors) = jacobi_eigen(&m, k);
-    let largest = values[..k].iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+    // nalgebra's symmetric eigen-decomposition (Householder tridiagonalization, then
+    // implicit QR), bounded in iterations so that it cannot loop.
+    let block = DMatrix::from_fn(k, k, |i, j| m[i][j]);
+    let Some(eigen) = SymmetricEigen::try_new(block, f64::EPSILON, EIGEN_MAX_ITERATIONS) else {
+        return gershgorin_shift(&m, k, &floor_of);
+    };
+    let values = &eigen.eigenvalues;
+    let vectors = &eigen.eigenvectors;
+    let largest = values.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
     let floor = floor_of(largest);
-    if values[..k].iter().all(|&v| v >= floor) {
+    if values.iter().all(|&v| v >= floor) {
         return m;
     }
     let mut out = [[0.0; N]; N];
@@ -747,9 +695,36 @@ pub(crate) fn convexify<const N: usize>(
         let value = values[e].max(floor);
         for i in 0..k {
             for j in 0..k {
-                out[i][j] += value * vectors[i][e] * vectors[j][e];
+                out[i][j] += value * vectors[(i, e)] * vectors[(j, e)];
             }
         }
+    }
+    out
+}
+
+/// The most QR iterations of the eigen-decomposition in [`convexify`] (a window's Hessian is
+/// at most 8 x 8; it converges in a few dozen).
+const EIGEN_MAX_ITERATIONS: usize = 10_000;
+
+/// The fallback of [`convexify`] when the eigen-decomposition does not converge: `m` plus the
+/// multiple of the identity that lifts every Gershgorin disc to at least the floor, which is
+/// positive definite (though more damped than the eigenvalue floor).
+fn gershgorin_shift<const N: usize>(
+    m: &[[f64; N]; N],
+    k: usize,
+    floor_of: impl Fn(f64) -> f64,
+) -> [[f64; N]; N] {
+    let mut lowest = f64::INFINITY;
+    let mut largest = 0.0_f64;
+    for (i, row) in m.iter().enumerate().take(k) {
+        let radius: f64 = (0..k).filter(|&j| j != i).map(|j| row[j].abs()).sum();
+        lowest = lowest.min(row[i] - radius);
+        largest = largest.max(row[i].abs() + radius);
+    }
+    let shift = (floor_of(largest) - lowest).max(0.0);
+    let mut out = *m;
+    for (i, row) in out.iter_mut().enumerate().take(k) {
+        row[i] += shift;
     }
     out
 }
@@ -1234,4 +1209,98 @@ pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Soluti
         fit_cost,
         objective: fit_cost - gamma * members.len() as f64,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use slam_core::nalgebra::SMatrix;
+
+    /// The eigenvalues of the leading `k x k` block, ascending.
+    fn eigenvalues<const N: usize>(m: &[[f64; N]; N], k: usize) -> Vec<f64> {
+        let block = DMatrix::from_fn(k, k, |i, j| m[i][j]);
+        let mut values: Vec<f64> = block.symmetric_eigenvalues().iter().copied().collect();
+        values.sort_by(f64::total_cmp);
+        values
+    }
+
+    #[test]
+    fn convexify_raises_negative_eigenvalues_and_keeps_the_eigenvectors() {
+        // [[1, 2], [2, 1]]: eigenvalue 3 along (1, 1), -1 along (1, -1). Raised to 0.5:
+        // 3 vv^T + 0.5 ww^T with unit v, w.
+        let h = [[1.0, 2.0], [2.0, 1.0]];
+        let out = convexify::<2>(&h, 2, |_| 0.5);
+        let expected = [[1.75, 1.25], [1.25, 1.75]];
+        for i in 0..2 {
+            for j in 0..2 {
+                assert!((out[i][j] - expected[i][j]).abs() < 1e-12, "{out:?}");
+            }
+        }
+        // Positive definite: returned as it is (symmetrized).
+        let pd = [[4.0, 1.0, 0.0], [1.0, 3.0, 0.5], [0.0, 0.5, 2.0]];
+        assert_eq!(convexify::<3>(&pd, 3, |_| 1e-9), pd);
+        // Not finite: zero.
+        let nan = [[f64::NAN, 0.0], [0.0, 1.0]];
+        assert_eq!(convexify::<2>(&nan, 2, |_| 1e-9), [[0.0; 2]; 2]);
+    }
+
+    #[test]
+    fn convexify_works_on_the_leading_block_of_indefinite_windows() {
+        // Seeded symmetric 8 x 8 matrices, some strongly indefinite or badly scaled; only the
+        // leading k x k block is used, the rest is left zero.
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        for case in 0..200 {
+            let k = 1 + case % 8;
+            let scale = 10f64.powi((case % 13) as i32 - 6);
+            let mut h = [[0.0; 8]; 8];
+            for i in 0..k {
+                for j in 0..=i {
+                    let v = next() * scale;
+                    h[i][j] = v;
+                    h[j][i] = v;
+                }
+            }
+            let floor_of = |largest: f64| 1e-9 * largest.max(1.0);
+            let out = convexify::<8>(&h, k, floor_of);
+            let before = eigenvalues(&h, k);
+            let after = eigenvalues(&out, k);
+            let largest = before.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+            let floor = floor_of(largest);
+            // Every eigenvalue is at least the floor; those above it are unchanged.
+            let tolerance = 1e-10 * largest.max(1e-300);
+            for (b, a) in before.iter().zip(&after) {
+                assert!(*a >= floor - tolerance, "case {case}: {after:?}");
+                if *b >= floor {
+                    assert!(
+                        (a - b).abs() <= tolerance,
+                        "case {case}: {before:?} -> {after:?}"
+                    );
+                }
+            }
+            // Symmetric, and nothing outside the block.
+            let m = SMatrix::<f64, 8, 8>::from_fn(|i, j| out[i][j]);
+            assert!((m - m.transpose()).amax() <= tolerance, "case {case}");
+            for i in 0..8 {
+                for j in 0..8 {
+                    if i >= k || j >= k {
+                        assert_eq!(out[i][j], 0.0, "case {case}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_fallback_shift_is_positive_definite() {
+        let h = [[1.0, 2.0, 0.0], [2.0, 1.0, -3.0], [0.0, -3.0, -2.0]];
+        let out = gershgorin_shift::<3>(&h, 3, |_| 0.25);
+        let values = eigenvalues(&out, 3);
+        assert!(values[0] >= 0.25 - 1e-12, "{values:?}");
+    }
 }

@@ -182,6 +182,30 @@ mod tests {
     }
 
     #[test]
+    fn a_blown_up_or_broken_pose_covariance_is_a_divergence() {
+        use slam_core::nalgebra::{DMatrix, DVector};
+        use slam_estimators::DeadReckoning;
+        let at = |variances: [f64; 3]| {
+            let covariance = DMatrix::from_diagonal(&DVector::from_row_slice(&variances));
+            let estimator = DeadReckoning::new(Pose2::identity(), covariance).unwrap();
+            let mut monitor = DivergenceMonitor::default();
+            monitor.step_end(7.0, &estimator).unwrap();
+            monitor.divergence().cloned()
+        };
+        // A large but finite uncertainty (1 km) is no divergence.
+        assert!(at([1e6, 1e6, 1.0]).is_none());
+        // A position standard deviation of 1000 km is.
+        let divergence = at([1e12, 1e12, 1.0]).unwrap();
+        assert_eq!(divergence.time, 7.0);
+        assert!(divergence.reason.contains("blew up"), "{divergence:?}");
+        let divergence = at([-1.0, 1.0, 1.0]).unwrap();
+        assert!(
+            divergence.reason.contains("negative variance"),
+            "{divergence:?}"
+        );
+    }
+
+    #[test]
     fn the_upper_quantile_is_continuous_across_the_approximation() {
         let exact = slam_core::chi2_quantile(TEST_PROBABILITY, 100).unwrap();
         let nu = 101.0_f64;

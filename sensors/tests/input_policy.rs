@@ -258,6 +258,50 @@ fn carmen_glitches_are_counted_and_units_checked() {
 }
 
 #[test]
+fn scans_all_at_their_maximum_range_are_a_warning_naming_the_setting() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = default_world_carmen();
+    // Every reading at the line's maximum range: no return at all, as when the maximum
+    // range or the unit is wrong.
+    let mut blind = String::new();
+    for line in text.lines() {
+        let mut fields: Vec<String> = line.split_whitespace().map(String::from).collect();
+        if fields.first().map(String::as_str) == Some("ROBOTLASER1") {
+            let n: usize = fields[8].parse().unwrap();
+            let max_range = fields[5].clone();
+            for field in &mut fields[9..9 + n] {
+                *field = max_range.clone();
+            }
+        }
+        blind.push_str(&fields.join(" "));
+        blind.push('\n');
+    }
+    let data = read_carmen(
+        &write(dir.path(), "blind.log", &blind),
+        &CarmenOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(data.warnings.len(), 1, "{:?}", data.warnings);
+    let warning = &data.warnings[0];
+    assert!(
+        warning.contains("blind.log")
+            && warning.contains("no reading below their maximum range")
+            && warning.contains("maximum_range"),
+        "{warning}"
+    );
+    // Not a glitch: nothing is counted as an impossible reading, and the scans are kept.
+    assert!(data.skipped_readings.is_empty());
+    // The whole log as simulated has no such warning.
+    let whole = read_carmen(
+        &write(dir.path(), "whole.log", &text),
+        &CarmenOptions::default(),
+    )
+    .unwrap();
+    assert!(whole.warnings.is_empty(), "{:?}", whole.warnings);
+    assert_eq!(data.counts().scans, whole.counts().scans);
+}
+
+#[test]
 fn a_line_without_end_is_an_error_not_a_whole_file_in_memory() {
     let dir = tempfile::tempdir().unwrap();
     let long = vec![b'7'; slam_sensors::data::MAX_LINE_BYTES + 10];

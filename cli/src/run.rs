@@ -399,6 +399,63 @@ mod tests {
     }
 
     #[test]
+    fn an_unwritable_out_is_an_error_before_the_data_is_read() {
+        // --out under a file cannot be created; the data do not exist either. The error is
+        // the output folder's: it is checked before the data are opened and the run starts.
+        let dir = temp_dir("unwritable");
+        let file = dir.path().join("a-file");
+        std::fs::write(&file, "").unwrap();
+        let mut config = Config::default();
+        config.data.spec = "rb2d:/no/such/file.rb2d".into();
+        config.output.dir = file.join("out");
+        let error = run_config(&config, true).unwrap_err().chain();
+        assert!(
+            error.contains("a-file") && !error.contains("/no/such/file.rb2d"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn a_run_along_a_straight_line_keeps_its_outputs_with_the_ate_null_and_its_reason() {
+        // The robot drives straight: its true poses lie on one line, so no SE(3) alignment
+        // is determined. The run is kept; the ATE is null with the reason, and no hint names
+        // an option that `slam run` does not have.
+        let dir = temp_dir("straight");
+        let text = std::fs::read_to_string(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../worlds/rb2d-circle.toml"),
+        )
+        .unwrap()
+        .replace(
+            "controls = { v = 1.0, omega_deg = 7.2, steps = 1000 }",
+            "controls = { v = 1.0, omega_deg = 0.0, steps = 60 }",
+        );
+        assert!(text.contains("omega_deg = 0.0, steps = 60"));
+        let world = dir.path().join("straight.toml");
+        std::fs::write(&world, text).unwrap();
+        let mut config = Config::default();
+        config.data.spec = format!("world:{}", world.display());
+        config.output.dir = dir.path().join("out");
+        config.output.plots = false;
+        let (summary, status) = run_config_until(&config, true, &AtomicBool::new(false)).unwrap();
+        assert_eq!(status, RunStatus::Complete);
+        assert!(summary.contains("ATE n/a m"), "{summary}");
+        assert!(!summary.contains("--align"), "{summary}");
+        let metrics: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
+        )
+        .unwrap();
+        assert!(metrics["ate_rmse_m"].is_null());
+        let reason = metrics["unavailable"]["ate"].as_str().unwrap();
+        assert!(
+            reason.contains("one line") && !reason.contains("--align"),
+            "{reason}"
+        );
+        assert_eq!(metrics["steps"], 61);
+        assert!(dir.path().join("out/trajectory.tum").is_file());
+        assert!(dir.path().join("out/map.json").is_file());
+    }
+
+    #[test]
     fn input_glitches_are_counted_in_the_metrics_and_the_summary() {
         let dir = temp_dir("glitch");
         let world = Path::new(env!("CARGO_MANIFEST_DIR")).join("../worlds/rb2d-circle.toml");

@@ -456,6 +456,50 @@ mod tests {
     }
 
     #[test]
+    fn a_warning_about_the_data_reaches_the_metrics() {
+        // A CARMEN log whose scans have every reading at the maximum range: the reader warns
+        // (the maximum range or the unit is likely wrong) and the run keeps the warning.
+        let dir = temp_dir("warning");
+        let mut world = slam_sensors::sim::World::default_world();
+        world.camera = None;
+        world.robot.waypoints.truncate(3);
+        let run = slam_sensors::sim::simulate(&world, 1).unwrap();
+        let text =
+            slam_sensors::data::carmen::carmen_text(&run.dataset, &Pose2::identity(), "t").unwrap();
+        let mut blind = String::new();
+        for line in text.lines() {
+            let mut fields: Vec<String> = line.split_whitespace().map(String::from).collect();
+            if fields.first().map(String::as_str) == Some("ROBOTLASER1") {
+                let n: usize = fields[8].parse().unwrap();
+                let max_range = fields[5].clone();
+                for field in &mut fields[9..9 + n] {
+                    *field = max_range.clone();
+                }
+            }
+            blind.push_str(&fields.join(" "));
+            blind.push('\n');
+        }
+        let log = dir.path().join("blind.log");
+        std::fs::write(&log, blind).unwrap();
+        let mut config = Config::default();
+        config.data.spec = format!("carmen:{}", log.display());
+        config.output.dir = dir.path().join("out");
+        config.output.plots = false;
+        run_config(&config, true).unwrap();
+        let metrics: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
+        )
+        .unwrap();
+        let warnings = metrics["input"]["warnings"].as_array().unwrap();
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        let warning = warnings[0].as_str().unwrap();
+        assert!(
+            warning.contains("blind.log") && warning.contains("maximum_range"),
+            "{warning}"
+        );
+    }
+
+    #[test]
     fn input_glitches_are_counted_in_the_metrics_and_the_summary() {
         let dir = temp_dir("glitch");
         let world = Path::new(env!("CARGO_MANIFEST_DIR")).join("../worlds/rb2d-circle.toml");

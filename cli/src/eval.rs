@@ -257,6 +257,20 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         ))
     })?;
     let rpe = rpe(&gt, &est, &pairs, &ate.alignment, delta, args.all_pairs)?;
+    let stats = [&ate.errors, &rpe.translation_m, &rpe.rotation_deg];
+    if !stats.iter().all(|s| s.is_finite()) {
+        let largest = gt
+            .iter()
+            .chain(&est)
+            .map(|p| p.pose.translation.amax())
+            .fold(0.0, f64::max);
+        return Err(CliError::Usage(format!(
+            "{}: the errors against {} are not finite numbers (coordinates up to {largest:e} \
+             m overflow): check the values and units of both files",
+            args.estimate.display(),
+            args.ground_truth.display()
+        )));
+    }
     let report = report(args, &gt, &est, pairs.len(), &ate, rpe);
     print!("{}", summary(&report));
     if let Some(path) = &args.json {
@@ -322,7 +336,6 @@ fn write_json(path: &Path, report: &Report) -> Result<()> {
     Ok(())
 }
 
-#[cfg(test)]
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -487,5 +500,35 @@ mod tests {
         bad.max_dt = 0.01;
         bad.json = Some(dir.path().join("no-such-folder").join("eval.json"));
         assert!(run(&bad).is_err());
+    }
+
+    #[test]
+    fn coordinates_that_overflow_are_an_error_not_inf_or_nan() {
+        let dir = test_dir("overflow");
+        let (gt_path, est_path) = (dir.path().join("gt.tum"), dir.path().join("big.tum"));
+        let gt = helix(20);
+        let big: Vec<_> = gt
+            .iter()
+            .map(|p| {
+                stamped(
+                    p.time,
+                    Pose3::new(p.pose.translation * 1e300, 0.0, 0.0, 0.0),
+                )
+            })
+            .collect();
+        slam_sensors::data::write_tum(&gt_path, &gt).unwrap();
+        slam_sensors::data::write_tum(&est_path, &big).unwrap();
+        let mut none = args(&gt_path, &est_path);
+        none.align = AlignArg::None;
+        let error = run(&none).unwrap_err().to_string();
+        assert!(
+            error.contains("big.tum") && error.contains("not finite") && error.contains("e300"),
+            "{error}"
+        );
+        let error = run(&args(&gt_path, &est_path)).unwrap_err().to_string();
+        assert!(
+            error.contains("overflow") && !error.contains("coordinates too large"),
+            "{error}"
+        );
     }
 }

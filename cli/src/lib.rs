@@ -17,6 +17,7 @@ mod eval;
 mod extract;
 mod figures;
 mod outputs;
+mod outset;
 mod plot;
 mod prior;
 mod progress;
@@ -29,7 +30,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 pub use error::{CliError, Result};
-pub use run::{RunArgs, run_config};
+pub use run::{EXIT_DIVERGED, EXIT_INTERRUPTED, RunArgs, RunStatus, run_config, run_config_until};
 
 /// Links the example crate, whose `typetag` registrations the command offers by name.
 use slam_examples as _;
@@ -88,12 +89,37 @@ where
     }
 }
 
+/// `slam run` with Ctrl-C (SIGINT) and SIGTERM stopping it at the next step, its outputs
+/// written; a second Ctrl-C ends the process at once.
+fn run_command(args: &run::RunArgs) -> ExitCode {
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        // A second signal while the first is handled ends the process (exit code 130).
+        let _ = signal_hook::flag::register_conditional_shutdown(
+            signal,
+            i32::from(EXIT_INTERRUPTED),
+            std::sync::Arc::clone(&stop),
+        );
+        let _ = signal_hook::flag::register(signal, std::sync::Arc::clone(&stop));
+    }
+    match run::run_until(args, &stop) {
+        Ok((summary, status)) => {
+            println!("{summary}");
+            ExitCode::from(status.exit_code())
+        }
+        Err(error) => {
+            eprintln!("slam: {}", error.chain());
+            ExitCode::FAILURE
+        }
+    }
+}
+
 /// The `slam` binary: parses `args` (help and version print and exit), runs the command,
 /// prints its summary, and on an error prints it with its causes and returns failure.
 pub fn main_with(args: impl IntoIterator<Item = OsString>) -> ExitCode {
     let cli = Cli::parse_from(args);
     let result = match &cli.command {
-        Command::Run(args) => run::run(args).map(|summary| println!("{summary}")),
+        Command::Run(args) => return run_command(args),
         Command::Extract(args) => extract::run(args),
         Command::Camera(args) => camera::run(args),
         Command::Simulate(args) => simulate::run(args),

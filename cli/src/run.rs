@@ -2,6 +2,7 @@
 //! configured estimator on simulated or real data and writes the standard outputs.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 
 use slam_runtime::{Config, PostProcessOutput, RunMetrics, RunOutput};
 
@@ -10,10 +11,18 @@ use crate::figures::{run_figure, stage_figure};
 use crate::outputs::{
     create_dir, estimates_csv, map_json, plain_map_json, write_json, write_text, write_trajectory,
 };
+use crate::outset::OutputSet;
 use crate::progress::Progress;
 
 /// Arguments of `slam run`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Exit codes: 0 the run went through the data; 1 an error (nothing \
+    written); 2 bad arguments; 3 the filter diverged (outputs written, \"status\": \
+    \"diverged\" in metrics.json); 130 interrupted by Ctrl-C or SIGTERM (outputs of the steps \
+    run written, \"status\": \"interrupted\"). The outputs replace --out as one set: killed at \
+    any moment, --out holds the previous complete set or the new one."
+)]
 pub struct RunArgs {
     /// Configuration file (TOML; every table and key is optional, see the README and
     /// `slam_runtime::Config`).
@@ -51,32 +60,83 @@ pub fn config_of(args: &RunArgs) -> Result<Config> {
     Ok(config)
 }
 
+/// How a run ended: the exit code of `slam run`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunStatus {
+    /// The run went through the data (exit code 0).
+    Complete,
+    /// The filter diverged; the outputs are written (exit code [`EXIT_DIVERGED`]).
+    Diverged,
+    /// Ctrl-C (or SIGTERM) stopped the run; the outputs of the steps run are written,
+    /// marked `"status": "interrupted"` (exit code [`EXIT_INTERRUPTED`]).
+    Interrupted,
+}
+
+/// The exit code of a run whose filter diverged (its outputs are written).
+pub const EXIT_DIVERGED: u8 = 3;
+
+/// The exit code of an interrupted run (its outputs are written, marked as such).
+pub const EXIT_INTERRUPTED: u8 = 130;
+
+impl RunStatus {
+    /// The process exit code.
+    pub fn exit_code(self) -> u8 {
+        match self {
+            RunStatus::Complete => 0,
+            RunStatus::Diverged => EXIT_DIVERGED,
+            RunStatus::Interrupted => EXIT_INTERRUPTED,
+        }
+    }
+
+    fn of(output: &RunOutput) -> Self {
+        if output.interrupted_at.is_some() {
+            RunStatus::Interrupted
+        } else if output.divergence.is_some() {
+            RunStatus::Diverged
+        } else {
+            RunStatus::Complete
+        }
+    }
+}
+
 /// Runs `slam run`; returns the summary it prints.
 pub fn run(args: &RunArgs) -> Result<String> {
     run_config(&config_of(args)?, args.quiet)
 }
 
+/// Runs `slam run` until the end of the data or until `stop` is set; returns the summary and
+/// how the run ended.
+pub fn run_until(args: &RunArgs, stop: &AtomicBool) -> Result<(String, RunStatus)> {
+    run_config_until(&config_of(args)?, args.quiet, stop)
+}
+
 /// Runs a configuration and writes its outputs; returns a summary (one line, and one per
 /// post-processing stage).
 pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
+    run_config_until(config, quiet, &AtomicBool::new(false)).map(|(summary, _)| summary)
+}
+
+/// [`run_config`], stopped at the next event once `stop` is set. The outputs are written
+/// into a new set beside the output folder, which replaces the previous set only when
+/// complete (`outset`); an output folder that cannot be written is an error before the run.
+pub fn run_config_until(
+    config: &Config,
+    quiet: bool,
+    stop: &AtomicBool,
+) -> Result<(String, RunStatus)> {
+    let set = OutputSet::prepare(&config.output.dir)?;
     let mut progress = Progress::new(quiet);
-    let output = slam_runtime::run(config, &mut progress)?;
+    let output = slam_runtime::run_until(config, &mut progress, stop)?;
     progress.finish();
-    let metrics = RunMetrics::compute(&output, config)?;
-    let dir = &config.output.dir;
-    create_dir(dir)?;
-    write_trajectory(dir, &output)?;
-    write_text(dir, "map.json", &map_json(output.estimator.as_ref())?)?;
-    write_text(dir, "estimates.csv", &estimates_csv(&output))?;
-    write_json(dir, "metrics.json", &metrics)?;
-    if config.output.plots {
-        let figure = run_figure(&output);
-        figure.save(&dir.join("map.svg"))?;
-        figure.save(&dir.join("map.png"))?;
+    for warning in &output.input.warnings {
+        eprintln!("slam: warning: {warning}");
     }
+    let metrics = RunMetrics::compute(&output, config)?;
+    write_outputs(set.path(), config, &output, &metrics)?;
+    set.commit()?;
+    let dir = &config.output.dir;
     let mut summary = summary_line(&output, &metrics, dir);
     for stage in &output.postprocess {
-        write_stage(dir, stage, &output.name, config.output.plots)?;
         summary.push('\n');
         summary.push_str(&stage.summary);
         summary.push_str(&format!("; outputs in {}", dir.join(&stage.name).display()));
@@ -89,7 +149,29 @@ pub fn run_config(config: &Config, quiet: bool) -> Result<String> {
             report.matched, report.refused
         );
     }
-    Ok(summary)
+    Ok((summary, RunStatus::of(&output)))
+}
+
+/// Every output of a run into `dir`.
+fn write_outputs(
+    dir: &Path,
+    config: &Config,
+    output: &RunOutput,
+    metrics: &RunMetrics,
+) -> Result<()> {
+    write_trajectory(dir, output)?;
+    write_text(dir, "map.json", &map_json(output.estimator.as_ref())?)?;
+    write_text(dir, "estimates.csv", &estimates_csv(output))?;
+    write_json(dir, "metrics.json", metrics)?;
+    if config.output.plots {
+        let figure = run_figure(output);
+        figure.save(&dir.join("map.svg"))?;
+        figure.save(&dir.join("map.png"))?;
+    }
+    for stage in &output.postprocess {
+        write_stage(dir, stage, &output.name, config.output.plots)?;
+    }
+    Ok(())
 }
 
 /// The outputs of a post-processing stage, in a folder of its name: `map.json`,
@@ -129,9 +211,14 @@ fn map_quality_clause(metrics: &RunMetrics) -> String {
 
 fn summary_line(output: &RunOutput, metrics: &RunMetrics, dir: &Path) -> String {
     let number = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
-    format!(
-        "{}: {} steps in {:.1} s ({:.3} ms/step); ATE {} m ({}); map error {} m; pose NEES \
-         mean {}{}; outputs in {}",
+    let nees = match &metrics.nees {
+        Some(nees) if metrics.nees_covariance == "gaussian" => nees.describe(),
+        Some(nees) => format!("{} (of the {})", nees.describe(), metrics.nees_covariance),
+        None => "n/a".into(),
+    };
+    let mut line = format!(
+        "{}: {} steps in {:.1} s ({:.3} ms/step); ATE {} m ({}); map error {} m; pose NEES per \
+         dof {nees}",
         output.name,
         metrics.steps,
         metrics.wall_time_s,
@@ -139,10 +226,29 @@ fn summary_line(output: &RunOutput, metrics: &RunMetrics, dir: &Path) -> String 
         number(metrics.ate_rmse_m),
         metrics.ate_against.unwrap_or("no truth"),
         number(metrics.map_error_m),
-        number(metrics.nees.as_ref().map(|n| n.mean_per_dof * 3.0)),
-        map_quality_clause(metrics),
-        dir.display()
-    )
+    );
+    line.push_str(&map_quality_clause(metrics));
+    let skipped: usize = output.input.skipped_readings.values().sum();
+    if skipped > 0 {
+        let reasons: Vec<String> = output
+            .input
+            .skipped_readings
+            .iter()
+            .map(|(reason, n)| format!("{n} {reason}"))
+            .collect();
+        line.push_str(&format!("; readings skipped: {}", reasons.join(", ")));
+    }
+    if let Some(divergence) = &output.divergence {
+        line.push_str(&format!(
+            "; DIVERGED at time {}: {}",
+            divergence.time, divergence.reason
+        ));
+    }
+    if let Some(time) = output.interrupted_at {
+        line.push_str(&format!("; INTERRUPTED after time {time}"));
+    }
+    line.push_str(&format!("; outputs in {}", dir.display()));
+    line
 }
 
 #[cfg(test)]
@@ -224,12 +330,25 @@ mod tests {
                     out.display()
                 );
                 let config = Config::from_toml(&text, "test").unwrap();
-                run_config(&config, true).unwrap();
+                let summary = run_config(&config, true).unwrap();
                 let metrics: serde_json::Value = serde_json::from_str(
                     &std::fs::read_to_string(out.join("metrics.json")).unwrap(),
                 )
                 .unwrap();
                 assert_eq!(metrics["estimator"], estimator);
+                // The NEES of the weighted particle cloud, said so, with the band of its mean.
+                assert_eq!(metrics["nees_covariance"], "particle cloud");
+                assert!(
+                    summary.contains("pose NEES per dof")
+                        && summary.contains("95% band")
+                        && summary.contains("of the particle cloud"),
+                    "{summary}"
+                );
+                if estimator == "ipslam" {
+                    assert!(metrics["nis"].is_null());
+                    let reason = metrics["unavailable"]["nis"].as_str().unwrap();
+                    assert!(reason.contains("no innovation"), "{reason}");
+                }
                 let ate = metrics["ate_rmse_m"].as_f64().unwrap();
                 assert!(ate < 1.0, "{estimator}: ATE {ate}");
                 assert!(
@@ -251,6 +370,188 @@ mod tests {
                 "{estimator}: same seed, same run"
             );
         }
+    }
+
+    #[test]
+    fn resource_limits_are_errors_naming_the_key_and_the_limit_before_any_work() {
+        let dir = temp_dir("limits");
+        let out = dir.path().join("out");
+        let text = format!(
+            "[estimator]\ntype = \"fastslam\"\nparticles = 100000000000\n[output]\ndir = \"{}\"\n",
+            out.display()
+        );
+        let error = run_config(&Config::from_toml(&text, "t").unwrap(), true)
+            .unwrap_err()
+            .chain();
+        assert!(error.contains("particles <= 100000"), "{error}");
+        let mut world = slam_sensors::sim::World::default_world();
+        if let Some(laser) = world.laser.as_mut() {
+            laser.beams = 100_000_000;
+        }
+        let mut camera = world.clone();
+        camera.laser = None;
+        if let Some(c) = camera.camera.as_mut() {
+            c.intrinsics.width = 100_000;
+            c.intrinsics.height = 100_000;
+        }
+        for (name, world, expected) in [
+            (
+                "beams",
+                world,
+                "[laser] beams = 100000000 is above the limit of 100000",
+            ),
+            (
+                "camera",
+                camera,
+                "100000 x 100000 = 10000000000 pixels is above the limit",
+            ),
+        ] {
+            let path = dir.path().join(format!("{name}.toml"));
+            std::fs::write(&path, toml::to_string(&world).unwrap()).unwrap();
+            let mut config = Config::default();
+            config.data.spec = format!("world:{}", path.display());
+            config.output.dir = out.clone();
+            let error = run_config(&config, true).unwrap_err().chain();
+            assert!(error.contains(expected), "{error}");
+        }
+        assert!(!out.exists(), "a refused run wrote its outputs");
+    }
+
+    #[test]
+    fn an_unwritable_out_is_an_error_before_the_data_is_read() {
+        // --out under a file cannot be created; the data do not exist either. The error is
+        // the output folder's: it is checked before the data are opened and the run starts.
+        let dir = temp_dir("unwritable");
+        let file = dir.path().join("a-file");
+        std::fs::write(&file, "").unwrap();
+        let mut config = Config::default();
+        config.data.spec = "rb2d:/no/such/file.rb2d".into();
+        config.output.dir = file.join("out");
+        let error = run_config(&config, true).unwrap_err().chain();
+        assert!(
+            error.contains("a-file") && !error.contains("/no/such/file.rb2d"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn a_run_along_a_straight_line_keeps_its_outputs_with_the_ate_null_and_its_reason() {
+        // The robot drives straight: its true poses lie on one line, so no SE(3) alignment
+        // is determined. The run is kept; the ATE is null with the reason, and no hint names
+        // an option that `slam run` does not have.
+        let dir = temp_dir("straight");
+        let text = std::fs::read_to_string(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../worlds/rb2d-circle.toml"),
+        )
+        .unwrap()
+        .replace(
+            "controls = { v = 1.0, omega_deg = 7.2, steps = 1000 }",
+            "controls = { v = 1.0, omega_deg = 0.0, steps = 60 }",
+        );
+        assert!(text.contains("omega_deg = 0.0, steps = 60"));
+        let world = dir.path().join("straight.toml");
+        std::fs::write(&world, text).unwrap();
+        let mut config = Config::default();
+        config.data.spec = format!("world:{}", world.display());
+        config.output.dir = dir.path().join("out");
+        config.output.plots = false;
+        let (summary, status) = run_config_until(&config, true, &AtomicBool::new(false)).unwrap();
+        assert_eq!(status, RunStatus::Complete);
+        assert!(summary.contains("ATE n/a m"), "{summary}");
+        assert!(!summary.contains("--align"), "{summary}");
+        let metrics: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
+        )
+        .unwrap();
+        assert!(metrics["ate_rmse_m"].is_null());
+        let reason = metrics["unavailable"]["ate"].as_str().unwrap();
+        assert!(
+            reason.contains("one line") && !reason.contains("--align"),
+            "{reason}"
+        );
+        assert_eq!(metrics["steps"], 61);
+        assert!(dir.path().join("out/trajectory.tum").is_file());
+        assert!(dir.path().join("out/map.json").is_file());
+    }
+
+    #[test]
+    fn a_warning_about_the_data_reaches_the_metrics() {
+        // A CARMEN log whose scans have every reading at the maximum range: the reader warns
+        // (the maximum range or the unit is likely wrong) and the run keeps the warning.
+        let dir = temp_dir("warning");
+        let mut world = slam_sensors::sim::World::default_world();
+        world.camera = None;
+        world.robot.waypoints.truncate(3);
+        let run = slam_sensors::sim::simulate(&world, 1).unwrap();
+        let text =
+            slam_sensors::data::carmen::carmen_text(&run.dataset, &Pose2::identity(), "t").unwrap();
+        let mut blind = String::new();
+        for line in text.lines() {
+            let mut fields: Vec<String> = line.split_whitespace().map(String::from).collect();
+            if fields.first().map(String::as_str) == Some("ROBOTLASER1") {
+                let n: usize = fields[8].parse().unwrap();
+                let max_range = fields[5].clone();
+                for field in &mut fields[9..9 + n] {
+                    *field = max_range.clone();
+                }
+            }
+            blind.push_str(&fields.join(" "));
+            blind.push('\n');
+        }
+        let log = dir.path().join("blind.log");
+        std::fs::write(&log, blind).unwrap();
+        let mut config = Config::default();
+        config.data.spec = format!("carmen:{}", log.display());
+        config.output.dir = dir.path().join("out");
+        config.output.plots = false;
+        run_config(&config, true).unwrap();
+        let metrics: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
+        )
+        .unwrap();
+        let warnings = metrics["input"]["warnings"].as_array().unwrap();
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        let warning = warnings[0].as_str().unwrap();
+        assert!(
+            warning.contains("blind.log") && warning.contains("maximum_range"),
+            "{warning}"
+        );
+    }
+
+    #[test]
+    fn input_glitches_are_counted_in_the_metrics_and_the_summary() {
+        let dir = temp_dir("glitch");
+        let world = Path::new(env!("CARGO_MANIFEST_DIR")).join("../worlds/rb2d-circle.toml");
+        let world = slam_sensors::sim::World::from_file(&world).unwrap();
+        let run = slam_sensors::sim::simulate(&world, 1).unwrap();
+        let text =
+            slam_sensors::data::rb2d::rb2d_text(&run.dataset, &world.rb2d_params(), "t").unwrap();
+        // One slightly negative range, as other tools write them.
+        let mut lines: Vec<String> = text.lines().map(String::from).collect();
+        let k = lines.iter().position(|l| l.starts_with("OBS 5 ")).unwrap();
+        let mut fields: Vec<String> = lines[k].split(' ').map(String::from).collect();
+        fields[3] = "-0.01".into();
+        lines[k] = fields.join(" ");
+        let log = dir.path().join("glitch.rb2d");
+        std::fs::write(&log, lines.join("\n")).unwrap();
+        let mut config = Config::default();
+        config.data.spec = format!("rb2d:{}", log.display());
+        config.output.dir = dir.path().join("out");
+        config.output.plots = false;
+        let summary = run_config(&config, true).unwrap();
+        assert!(
+            summary.contains("readings skipped: 1 rb2d OBS: range not positive"),
+            "{summary}"
+        );
+        let metrics: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(
+            metrics["input"]["skipped_readings"]["rb2d OBS: range not positive"],
+            1
+        );
+        assert_eq!(metrics["status"], "complete");
     }
 
     #[test]

@@ -32,6 +32,7 @@ pub mod fastslam;
 pub mod ipslam;
 pub mod lifecycle;
 mod particles;
+pub use particles::MAX_PARTICLES;
 
 pub use association::{Association, AssociationSettings};
 pub use dead_reckoning::{DeadReckoning, DeadReckoningParams};

@@ -144,9 +144,17 @@ fn resolve_frontend(
 }
 
 impl Config {
-    /// Parses a TOML configuration; unknown keys and names are errors naming them.
+    /// Parses a TOML configuration; unknown keys and names, and values of the wrong type or
+    /// range, are errors naming the table and key.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self> {
-        toml::from_str(text).map_err(|e| RuntimeError::config(origin, e.to_string()))
+        toml::from_str(text).map_err(|e| {
+            let message = match toml::from_str::<toml::Table>(text) {
+                // Valid TOML that is not a valid config: name the key at fault.
+                Ok(table) => blame(&table, &e),
+                Err(_) => e.to_string(),
+            };
+            RuntimeError::config(origin, message)
+        })
     }
 
     /// Reads a TOML configuration file.
@@ -194,5 +202,181 @@ impl Config {
             stage.validate()?;
         }
         Ok(())
+    }
+}
+
+/// The message of `error` (a config that is valid TOML but not a valid config) naming the key
+/// at fault: the settings tables are read through `typetag`, which loses the key of a value
+/// of the wrong type, so each key is tried alone (with every `type`) until one fails.
+fn blame(table: &toml::Table, error: &toml::de::Error) -> String {
+    let mut leaves = Vec::new();
+    leaf_paths(table, &mut Vec::new(), &mut leaves);
+    let skeleton = toml::Value::Table(only_types(table));
+    for path in leaves {
+        let mut candidate = skeleton.clone();
+        if let Some(value) = get_path(table, &path) {
+            set_path(&mut candidate, &path, value.clone());
+        }
+        if let Err(e) = candidate.try_into::<Config>() {
+            let value = get_path(table, &path).map_or(String::new(), |v| format!(" = {v}"));
+            return format!(
+                "[{}] {}{value}: {}",
+                table_name(&path),
+                key_name(&path),
+                e.message().trim()
+            );
+        }
+    }
+    error.message().trim().to_string()
+}
+
+/// One step of a path into a TOML document.
+#[derive(Clone, Debug)]
+enum Step {
+    Key(String),
+    Index(usize),
+}
+
+/// Every path to a value that is not a table, an array of tables or a `type` key.
+fn leaf_paths(table: &toml::Table, prefix: &mut Vec<Step>, out: &mut Vec<Vec<Step>>) {
+    for (key, value) in table {
+        prefix.push(Step::Key(key.clone()));
+        match value {
+            toml::Value::Table(inner) => leaf_paths(inner, prefix, out),
+            toml::Value::Array(items)
+                if items.iter().all(toml::Value::is_table) && !items.is_empty() =>
+            {
+                for (i, item) in items.iter().enumerate() {
+                    prefix.push(Step::Index(i));
+                    if let toml::Value::Table(inner) = item {
+                        leaf_paths(inner, prefix, out);
+                    }
+                    prefix.pop();
+                }
+            }
+            _ if key == "type" => {}
+            _ => out.push(prefix.clone()),
+        }
+        prefix.pop();
+    }
+}
+
+/// The tables of `table` with their `type` keys only (arrays of tables keep their length).
+fn only_types(table: &toml::Table) -> toml::Table {
+    let mut out = toml::Table::new();
+    for (key, value) in table {
+        match value {
+            toml::Value::Table(inner) => {
+                out.insert(key.clone(), toml::Value::Table(only_types(inner)));
+            }
+            toml::Value::Array(items)
+                if items.iter().all(toml::Value::is_table) && !items.is_empty() =>
+            {
+                let items = items
+                    .iter()
+                    .map(|item| match item {
+                        toml::Value::Table(inner) => toml::Value::Table(only_types(inner)),
+                        other => other.clone(),
+                    })
+                    .collect();
+                out.insert(key.clone(), toml::Value::Array(items));
+            }
+            _ if key == "type" => {
+                out.insert(key.clone(), value.clone());
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
+fn get_path<'a>(table: &'a toml::Table, path: &[Step]) -> Option<&'a toml::Value> {
+    let (first, rest) = path.split_first()?;
+    let Step::Key(key) = first else {
+        return None;
+    };
+    let mut value = table.get(key)?;
+    for step in rest {
+        value = match step {
+            Step::Key(key) => value.as_table()?.get(key)?,
+            Step::Index(i) => value.as_array()?.get(*i)?,
+        };
+    }
+    Some(value)
+}
+
+fn set_path(root: &mut toml::Value, path: &[Step], leaf: toml::Value) {
+    let Some((last, parents)) = path.split_last() else {
+        return;
+    };
+    let mut current = root;
+    for step in parents {
+        current = match (step, current) {
+            (Step::Key(key), toml::Value::Table(table)) => table
+                .entry(key.clone())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new())),
+            (Step::Index(i), toml::Value::Array(items)) => match items.get_mut(*i) {
+                Some(item) => item,
+                None => return,
+            },
+            _ => return,
+        };
+    }
+    if let (Step::Key(key), toml::Value::Table(table)) = (last, current) {
+        table.insert(key.clone(), leaf);
+    }
+}
+
+/// `estimator`, `data.victoria_park`, `postprocess` (1-based index kept apart).
+fn table_name(path: &[Step]) -> String {
+    let parents = &path[..path.len().saturating_sub(1)];
+    let mut name = String::new();
+    for step in parents {
+        match step {
+            Step::Key(key) => {
+                if !name.is_empty() {
+                    name.push('.');
+                }
+                name.push_str(key);
+            }
+            Step::Index(i) => name.push_str(&format!("#{}", i + 1)),
+        }
+    }
+    name
+}
+
+fn key_name(path: &[Step]) -> String {
+    match path.last() {
+        Some(Step::Key(key)) => key.clone(),
+        Some(Step::Index(i)) => format!("#{}", i + 1),
+        None => String::new(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_value_of_the_wrong_type_names_its_table_and_key() {
+        let cases = [
+            (
+                "[estimator]\ntype = \"ekf\"\nconfirm_after = -1\n",
+                "[estimator] confirm_after = -1",
+            ),
+            (
+                "[estimator]\ntype = \"fastslam\"\nparticles = 1e11\n",
+                "[estimator] particles = 1",
+            ),
+            ("[data]\nseed = \"one\"\n", "[data] seed = \"one\""),
+            (
+                "[[postprocess]]\ntype = \"em-polygon\"\n[[postprocess]]\ntype = \"em-polygon\"\nposes = 3\n",
+                "[postprocess#2] poses = 3",
+            ),
+        ];
+        for (text, expected) in cases {
+            let error = Config::from_toml(text, "t.toml").unwrap_err().to_string();
+            assert!(error.contains(expected), "{error}\nvs {expected}");
+        }
     }
 }

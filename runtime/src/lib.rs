@@ -34,6 +34,7 @@ mod error;
 mod estimators;
 pub mod eval;
 pub mod frontend;
+pub mod health;
 mod metrics;
 pub mod postprocess;
 mod record;
@@ -47,7 +48,7 @@ pub use frontend::{Frontend, FrontendConfig, load_prior};
 pub use metrics::{LaserOdometryReportView, RunMetrics};
 pub use postprocess::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
 pub use record::{Recorder, UpdateTotals};
-pub use run::{RunOutput, run};
+pub use run::{InputReport, RunOutput, run, run_until};
 pub use session::{Observer, Session};
 
 /// Re-exported so that a crate registering its own estimator, front-end or stage uses the

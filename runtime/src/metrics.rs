@@ -13,10 +13,12 @@ use crate::error::Result;
 use crate::eval::{
     ChiSquareSummary, ErrorStats, MapError, MapQuality, TrajectoryErrors, chi_square_summary,
     confirmed, feature_counts, map_error_against_landmarks, map_error_against_truth, map_quality,
-    pose_nees, wall_segments,
+    pose_nees, singular_steps, wall_segments,
 };
 use crate::frontend::FrontendCounts;
+use crate::health::Divergence;
 use crate::record::UpdateTotals;
+use crate::run::InputReport;
 use crate::run::RunOutput;
 
 /// Everything in `metrics.json`.
@@ -26,6 +28,14 @@ pub struct RunMetrics {
     pub data: String,
     /// The estimator's name.
     pub estimator: &'static str,
+    /// `"complete"`, `"interrupted"` (stopped before the end of the data, e.g. by Ctrl-C: the
+    /// outputs are those of the steps run) or `"diverged"` (the filter diverged: see
+    /// `divergence`).
+    pub status: &'static str,
+    /// The time of the last event processed, when the run was interrupted.
+    pub interrupted_at: Option<f64>,
+    /// Where and why the filter diverged, if it did.
+    pub divergence: Option<Divergence>,
     /// The `[data] seed`.
     pub seed: u64,
     /// Time steps with an estimate.
@@ -54,10 +64,17 @@ pub struct RunMetrics {
     pub map_error_unaligned_m: Option<f64>,
     /// The map error in detail.
     pub map_error: Option<MapError>,
-    /// Robot pose NEES (3 dof) at every step with a true pose.
+    /// Robot pose NEES (3 dof) at every step with a true pose whose covariance is not
+    /// singular (`null` with the reason in `unavailable` when there is none).
     pub nees: Option<ChiSquareSummary>,
-    /// NIS of every paired observation.
-    pub nis: ChiSquareSummary,
+    /// Where the covariance of the NEES comes from: `"gaussian"` or `"particle cloud"`.
+    pub nees_covariance: &'static str,
+    /// Steps with a true pose left out of the NEES because their covariance is singular (a
+    /// pose known exactly; a collapsed particle cloud).
+    pub nees_singular_steps: usize,
+    /// NIS of every paired observation (`null` with the reason in `unavailable` when the
+    /// estimator reported none).
+    pub nis: Option<ChiSquareSummary>,
     /// How well the wall map explains the scans and how much of it is doubled (runs with
     /// laser scans and walls; no truth needed).
     pub map_quality: Option<MapQuality>,
@@ -69,6 +86,9 @@ pub struct RunMetrics {
     pub skipped: Skips,
     /// What the front-end produced and dropped.
     pub frontend: FrontendCounts,
+    /// What the data reader skipped (lines by first word, impossible readings by reason) and
+    /// its warnings.
+    pub input: InputReport,
     /// The matches of `[data.laser_odometry]`.
     pub laser_odometry: Option<LaserOdometryReportView>,
     /// The figures of the post-processing stages, by name.
@@ -110,10 +130,7 @@ impl RunMetrics {
             "map_error",
             Self::map_error(output, trajectory.as_ref()),
         );
-        let nees: Vec<(f64, usize)> = pose_nees(&record.estimates, &record.true_poses())
-            .into_iter()
-            .map(|(_, n)| (n, 3))
-            .collect();
+        let consistency = Consistency::of(output, &mut unavailable)?;
         let map_path_ate_rmse_m = match &output.map_path {
             Some(path) => available(&mut unavailable, "map_path_ate", record.path_errors(path))
                 .map(|t| t.ate_rmse_m),
@@ -123,6 +140,9 @@ impl RunMetrics {
         Ok(RunMetrics {
             data: output.name.clone(),
             estimator: estimator.name(),
+            status: status(output),
+            interrupted_at: output.interrupted_at,
+            divergence: output.divergence.clone(),
             seed: config.data.seed,
             steps,
             events: record.events,
@@ -139,17 +159,16 @@ impl RunMetrics {
                 .as_ref()
                 .map(|truth| map_error_against_truth(estimator, &truth.shapes(), None).rms_m),
             map_error,
-            nees: if nees.is_empty() {
-                None
-            } else {
-                Some(chi_square_summary(&nees)?)
-            },
-            nis: record.nis.summary(),
+            nees: consistency.nees,
+            nees_covariance: estimator.covariance_source(),
+            nees_singular_steps: consistency.singular_steps,
+            nis: consistency.nis,
             map_quality: Self::map_quality(output),
             features: feature_counts(estimator),
             updates: record.updates,
             skipped: record.skipped.clone(),
             frontend: output.frontend.clone(),
+            input: output.input.clone(),
             laser_odometry: output.laser_odometry.as_ref().map(Into::into),
             postprocess: output
                 .postprocess
@@ -224,6 +243,67 @@ impl RunMetrics {
             })
         };
         Ok(error.filter(|m| m.count > 0))
+    }
+}
+
+/// NEES and NIS of a run, with the reasons of those that are missing.
+struct Consistency {
+    nees: Option<ChiSquareSummary>,
+    singular_steps: usize,
+    nis: Option<ChiSquareSummary>,
+}
+
+impl Consistency {
+    fn of(output: &RunOutput, unavailable: &mut BTreeMap<&'static str, String>) -> Result<Self> {
+        let record = &output.record;
+        let estimator = output.estimator.as_ref();
+        let truth = record.true_poses();
+        let nees: Vec<(f64, usize)> = pose_nees(&record.estimates, &truth)
+            .into_iter()
+            .map(|(_, n)| (n, 3))
+            .collect();
+        let nees_singular_steps = singular_steps(&record.estimates, &truth);
+        if nees.is_empty() && nees_singular_steps > 0 {
+            unavailable.insert(
+                "nees",
+                format!(
+                    "the pose covariance is singular at all {nees_singular_steps} steps with a \
+                     true pose ({})",
+                    estimator.covariance_source()
+                ),
+            );
+        }
+        let nis = record.nis.summary();
+        let updates = record.updates.associated + record.updates.new_features;
+        if nis.count == 0 && updates > 0 {
+            unavailable.insert(
+                "nis",
+                format!(
+                    "the {} estimator reported no innovation for its {updates} used observations",
+                    estimator.name()
+                ),
+            );
+        }
+        Ok(Consistency {
+            nees: if nees.is_empty() {
+                None
+            } else {
+                Some(chi_square_summary(&nees)?)
+            },
+            singular_steps: nees_singular_steps,
+            nis: (nis.count > 0).then_some(nis),
+        })
+    }
+}
+
+/// The status of a run: interrupted, diverged or complete.
+fn status(output: &RunOutput) -> &'static str {
+    if output.interrupted_at.is_some() {
+        "interrupted"
+    } else if output.divergence.is_some() {
+        "diverged"
+    } else {
+        "complete"
     }
 }
 

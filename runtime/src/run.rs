@@ -2,7 +2,11 @@
 //! post-processing stages by name, step through the events with the standard [`Recorder`],
 //! finish the stages. What the `slam run` command does, minus the files.
 
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
+
+use serde::Serialize;
 
 use slam_core::nalgebra::DMatrix;
 use slam_core::{Estimator, Pose2};
@@ -14,6 +18,7 @@ use crate::config::Config;
 use crate::error::{Result, RuntimeError};
 use crate::estimators::Start;
 use crate::frontend::FrontendCounts;
+use crate::health::{Divergence, DivergenceMonitor};
 use crate::postprocess::{FinishedRun, PostProcess, PostProcessOutput};
 use crate::record::Recorder;
 use crate::session::{Observer, Session};
@@ -41,6 +46,34 @@ pub struct RunOutput {
     pub laser_odometry: Option<LaserOdometryReport>,
     /// What the post-processing stages produced, in their order.
     pub postprocess: Vec<PostProcessOutput>,
+    /// What the data reader skipped and doubts.
+    pub input: InputReport,
+    /// The first divergence of the filter, if it diverged (the run went on to the end).
+    pub divergence: Option<Divergence>,
+    /// The time of the last event processed when the run was stopped before the end of the
+    /// data ([`run_until`]), if it was.
+    pub interrupted_at: Option<f64>,
+}
+
+/// What the data reader left out or doubts (the input policy of [`slam_sensors::data`]).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct InputReport {
+    /// Lines not used, by their first word.
+    pub skipped_lines: BTreeMap<String, usize>,
+    /// Readings skipped as physically impossible, by reason.
+    pub skipped_readings: BTreeMap<String, usize>,
+    /// Warnings about the data (e.g. implausible units).
+    pub warnings: Vec<String>,
+}
+
+impl InputReport {
+    fn of(counter: &slam_sensors::SkipCounter) -> Self {
+        InputReport {
+            skipped_lines: counter.get(),
+            skipped_readings: counter.readings(),
+            warnings: counter.warnings(),
+        }
+    }
 }
 
 /// Runs `config`: `observer` watches the session besides the standard record (e.g. a
@@ -53,42 +86,48 @@ pub struct RunOutput {
 /// # Ok::<(), slam_runtime::RuntimeError>(())
 /// ```
 pub fn run(config: &Config, observer: &mut dyn Observer) -> Result<RunOutput> {
+    run_until(config, observer, &AtomicBool::new(false))
+}
+
+/// [`run`], stopped at the next event once `stop` is set (e.g. by Ctrl-C): the open time step
+/// ends, the stages finish, and [`RunOutput::interrupted_at`] says where it stopped.
+pub fn run_until(
+    config: &Config,
+    observer: &mut dyn Observer,
+    stop: &AtomicBool,
+) -> Result<RunOutput> {
     config.validate()?;
     let data = config.data.open()?;
     let name = data.events.info.name.clone();
     let landmarks = data.events.info.landmarks.clone();
+    let counter = data.events.skip_counter();
     let mut events = data.events;
     let (pose, before_motion) = initial_pose(&mut events)?;
-    let [sx, sy, st] = config.data.initial_pose_sigma;
-    let start = Start {
-        pose,
-        covariance: DMatrix::from_diagonal(&slam_core::nalgebra::DVector::from_vec(vec![
-            sx * sx,
-            sy * sy,
-            st * st,
-        ])),
-    };
-    let estimator = config.estimator.build(&start)?;
-    let frontend = config.frontend.build(&data.sensors)?;
-    let mut stages = config
-        .postprocess
-        .iter()
-        .map(|stage| stage.build())
-        .collect::<Result<Vec<Box<dyn PostProcess>>>>()?;
-    let mut session = Session::new(estimator, frontend);
+    let (mut session, mut stages) = build(config, pose, &data.sensors)?;
     let mut record = Recorder::default();
+    let mut monitor = DivergenceMonitor::default();
     let limit = match config.data.max_events {
         0 => usize::MAX,
         n => n,
     };
     let all = before_motion.into_iter().map(Ok).chain(events).take(limit);
-    let wall_time_s = {
-        let mut observers: Vec<&mut dyn Observer> = vec![&mut record, observer];
+    let (wall_time_s, interrupted_at) = {
+        let mut observers: Vec<&mut dyn Observer> = vec![&mut record, &mut monitor, observer];
         for stage in &mut stages {
             observers.push(stage.as_mut());
         }
-        timed_run(&mut session, all, &mut observers)?
+        timed_run(&mut session, all, &mut observers, stop)?
     };
+    if record.events == 0 {
+        let why = match interrupted_at {
+            Some(_) => "the run was stopped before the first event".to_string(),
+            None => format!(
+                "the data gave no event (lines skipped: {:?})",
+                counter.get()
+            ),
+        };
+        return Err(RuntimeError::Data(format!("{name}: {why}")));
+    }
     let (estimator, frontend) = session.into_parts();
     let map_path = map_path(estimator.as_ref(), &record)?;
     let finished = FinishedRun {
@@ -113,26 +152,64 @@ pub fn run(config: &Config, observer: &mut dyn Observer) -> Result<RunOutput> {
         laser_odometry: data.laser_odometry.map(|c| c.report()),
         record,
         postprocess,
+        input: InputReport::of(&counter),
+        divergence: monitor.divergence().cloned(),
+        interrupted_at,
     })
 }
 
+/// The session (estimator and front-end) and the post-processing stages of `config`, the
+/// estimator starting at `pose`.
+fn build(
+    config: &Config,
+    pose: Pose2,
+    sensors: &crate::frontend::SensorInfo,
+) -> Result<(Session, Vec<Box<dyn PostProcess>>)> {
+    let [sx, sy, st] = config.data.initial_pose_sigma;
+    let start = Start {
+        pose,
+        covariance: DMatrix::from_diagonal(&slam_core::nalgebra::DVector::from_vec(vec![
+            sx * sx,
+            sy * sy,
+            st * st,
+        ])),
+    };
+    let estimator = config.estimator.build(&start)?;
+    let frontend = config.frontend.build(sensors)?;
+    let stages = config
+        .postprocess
+        .iter()
+        .map(|stage| stage.build())
+        .collect::<Result<Vec<Box<dyn PostProcess>>>>()?;
+    Ok((Session::new(estimator, frontend), stages))
+}
+
 /// Runs the session over `events` and returns the seconds spent stepping (reading and
-/// generating the data excluded, as when the data were loaded first).
+/// generating the data excluded, as when the data were loaded first), and the time of the
+/// last event processed when `stop` ended the run early.
 fn timed_run(
     session: &mut Session,
     events: impl Iterator<Item = slam_sensors::Result<TimedEvent>>,
     observer: &mut dyn Observer,
-) -> Result<f64> {
+    stop: &AtomicBool,
+) -> Result<(f64, Option<f64>)> {
     let mut seconds = 0.0;
+    let mut last = None;
+    let mut interrupted = None;
     for event in events {
+        if stop.load(Ordering::Relaxed) {
+            interrupted = Some(last.unwrap_or(f64::NAN));
+            break;
+        }
         let event = event?;
         let clock = Instant::now();
         session.step(&event, observer)?;
         seconds += clock.elapsed().as_secs_f64();
+        last = Some(event.time);
     }
     let clock = Instant::now();
     session.finish(observer)?;
-    Ok(seconds + clock.elapsed().as_secs_f64())
+    Ok((seconds + clock.elapsed().as_secs_f64(), interrupted))
 }
 
 /// The first pose of the data: the first truth pose if it comes before any motion, else the

@@ -8,6 +8,9 @@ use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{Matrix2x3, Vector2, Vector3};
 use slam_core::{Error, Result};
 
+/// The most pixels an image may have (a resource limit: 64 Mi, e.g. 8192 x 8192).
+pub const MAX_PIXELS: u64 = 1 << 26;
+
 /// Pinhole intrinsics in pixels.
 ///
 /// ```
@@ -60,7 +63,17 @@ impl PinholeCamera {
             .all(|v| v.is_finite());
         if !finite || self.fx <= 0.0 || self.fy <= 0.0 || self.width == 0 || self.height == 0 {
             return Err(Error::InvalidArgument(format!(
-                "camera intrinsics {self:?}"
+                "camera intrinsics: fx {} and fy {} must be finite and positive, cx {} and cy \
+                 {} finite, width {} and height {} at least 1",
+                self.fx, self.fy, self.cx, self.cy, self.width, self.height
+            )));
+        }
+        let pixels = u64::from(self.width) * u64::from(self.height);
+        if pixels > MAX_PIXELS {
+            return Err(Error::InvalidArgument(format!(
+                "camera intrinsics: width x height = {} x {} = {pixels} pixels is above the \
+                 limit of {MAX_PIXELS} (a resource limit: a byte per pixel and image)",
+                self.width, self.height
             )));
         }
         Ok(())

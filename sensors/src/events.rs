@@ -96,6 +96,10 @@ pub struct Dataset {
     pub landmarks: Vec<KnownLandmark>,
     /// Lines that were not used, counted by their first word (e.g. `NEFF`, `PARAM`).
     pub skipped: BTreeMap<String, usize>,
+    /// Readings skipped as physically impossible, counted by reason (see [`crate::data`]).
+    pub skipped_readings: BTreeMap<String, usize>,
+    /// Warnings about the data (e.g. implausible units).
+    pub warnings: Vec<String>,
 }
 
 impl Dataset {
@@ -107,6 +111,8 @@ impl Dataset {
             clock,
             landmarks: Vec::new(),
             skipped: Default::default(),
+            skipped_readings: Default::default(),
+            warnings: Vec::new(),
         }
     }
 
@@ -165,38 +171,81 @@ pub struct DatasetInfo {
     pub landmarks: Vec<KnownLandmark>,
 }
 
-/// Counts of unused lines by their first word, shared between a reader and its
-/// [`EventStream`] (cloning shares the counts).
+/// What a reader left out or doubts, shared between a reader and its [`EventStream`] (cloning
+/// shares the counts): unused lines counted by their first word, readings skipped as
+/// physically impossible counted by reason (the input policy of [`crate::data`]), and
+/// warnings about the data (implausible units, ...).
 #[derive(Clone, Debug, Default)]
-pub struct SkipCounter(Arc<Mutex<BTreeMap<String, usize>>>);
+pub struct SkipCounter(Arc<Mutex<Skipped>>);
+
+/// The contents of a [`SkipCounter`].
+#[derive(Clone, Debug, Default)]
+struct Skipped {
+    lines: BTreeMap<String, usize>,
+    readings: BTreeMap<String, usize>,
+    warnings: Vec<String>,
+}
+
+/// At most this many distinct warnings are kept (a warning is about the data, not a line).
+const MAX_WARNINGS: usize = 32;
 
 impl SkipCounter {
-    /// A counter starting at `counts`.
+    /// A counter starting at `counts` unused lines.
     pub fn new(counts: BTreeMap<String, usize>) -> Self {
-        SkipCounter(Arc::new(Mutex::new(counts)))
+        SkipCounter(Arc::new(Mutex::new(Skipped {
+            lines: counts,
+            ..Skipped::default()
+        })))
     }
 
     /// Counts one unused line under `key`.
     pub fn count(&self, key: &str) {
-        let mut counts = self.lock();
-        match counts.get_mut(key) {
-            Some(n) => *n += 1,
-            None => {
-                counts.insert(key.to_string(), 1);
-            }
+        increment(&mut self.lock().lines, key);
+    }
+
+    /// Counts one reading skipped for `reason` (e.g. `"rb2d OBS: range not positive"`).
+    pub fn count_reading(&self, reason: &str) {
+        increment(&mut self.lock().readings, reason);
+    }
+
+    /// Keeps a warning about the data (once; at most a few dozen are kept).
+    pub fn warn(&self, warning: impl Into<String>) {
+        let warning = warning.into();
+        let mut skipped = self.lock();
+        if skipped.warnings.len() < MAX_WARNINGS && !skipped.warnings.contains(&warning) {
+            skipped.warnings.push(warning);
         }
     }
 
-    /// The counts so far.
+    /// The unused lines so far, by first word.
     pub fn get(&self) -> BTreeMap<String, usize> {
-        self.lock().clone()
+        self.lock().lines.clone()
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, BTreeMap<String, usize>> {
-        // A panic while counting cannot leave the map inconsistent: use it anyway.
+    /// The skipped readings so far, by reason.
+    pub fn readings(&self) -> BTreeMap<String, usize> {
+        self.lock().readings.clone()
+    }
+
+    /// The warnings so far.
+    pub fn warnings(&self) -> Vec<String> {
+        self.lock().warnings.clone()
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Skipped> {
+        // A panic while counting cannot leave the counts inconsistent: use them anyway.
         self.0
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
+fn increment(counts: &mut BTreeMap<String, usize>, key: &str) {
+    match counts.get_mut(key) {
+        Some(n) => *n += 1,
+        None => {
+            counts.insert(key.to_string(), 1);
+        }
     }
 }
 
@@ -251,18 +300,39 @@ impl EventStream {
             clock,
             landmarks,
             skipped,
+            skipped_readings,
+            warnings,
         } = dataset;
         let info = DatasetInfo {
             name,
             clock,
             landmarks,
         };
-        EventStream::new(info, events.into_iter().map(Ok)).with_skipped(SkipCounter::new(skipped))
+        let counter = SkipCounter::new(skipped);
+        for (reason, n) in skipped_readings {
+            for _ in 0..n {
+                counter.count_reading(&reason);
+            }
+        }
+        for warning in warnings {
+            counter.warn(warning);
+        }
+        EventStream::new(info, events.into_iter().map(Ok)).with_skipped(counter)
     }
 
     /// Lines not used so far, counted by their first word (as [`Dataset::skipped`]).
     pub fn skipped(&self) -> BTreeMap<String, usize> {
         self.skipped.get()
+    }
+
+    /// Readings skipped so far as physically impossible, by reason.
+    pub fn skipped_readings(&self) -> BTreeMap<String, usize> {
+        self.skipped.readings()
+    }
+
+    /// Warnings about the data so far (e.g. implausible units).
+    pub fn warnings(&self) -> Vec<String> {
+        self.skipped.warnings()
     }
 
     /// The shared skip counter, for an adapter that passes it on to the stream it builds.
@@ -286,6 +356,8 @@ impl EventStream {
             }
         }
         dataset.skipped = skipped.get();
+        dataset.skipped_readings = skipped.readings();
+        dataset.warnings = skipped.warnings();
         Ok(dataset)
     }
 }

@@ -5,6 +5,10 @@ use slam_core::nalgebra::Vector2;
 
 use crate::error::{Result, SensorError};
 
+/// The most beams a simulated laser may have (a resource limit; real 2-D lasers have a few
+/// thousand at most).
+pub const MAX_BEAMS: usize = 100_000;
+
 /// One sweep of a planar laser: ranges at equally spaced bearings in the sensor frame
 /// (counter-clockwise from `angle_min`, 0 straight ahead).
 ///

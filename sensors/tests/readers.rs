@@ -280,7 +280,6 @@ fn rb2d_malformed_lines() {
             8,
             "landmark id must be -1 or non-negative",
         ),
-        ("OBS 1 1 -2.0 0.1\n", 8, "range must be positive"),
         ("PARAM dt 0.2\n", 8, "already set at line 2"),
         ("PARAM speed 0.2\n", 8, "unknown parameter `speed`"),
     ];
@@ -324,7 +323,6 @@ fn carmen_malformed_lines() {
             2,
             "expected a number, got `x`",
         ),
-        ("FLASER 2 1 inf 0 0 0 0 0 0 0 h 0\n", 1, "not finite"),
         (
             "FLASER two 1 2\n",
             1,
@@ -399,12 +397,6 @@ fn victoria_park_malformed_lines() {
             "frame 0 is at 1.5 s",
         ),
         (
-            "tree_detections.csv",
-            "frame,time_s,range_m,bearing_rad,diameter_m\n0,1.5,5.0,1.0,-0.3\n",
-            2,
-            "must be positive",
-        ),
-        (
             "laser_frame_times.csv",
             "frame,time_s\n0,1.5\n0,1.6\n",
             3,
@@ -471,5 +463,32 @@ fn mrclam_malformed_lines() {
         read_mrclam(dir.path(), 1, &MrclamOptions::default()),
         "Landmark_Groundtruth.dat:5:",
         "expected 5 fields, got 4",
+    );
+}
+
+#[test]
+fn impossible_readings_are_skipped_and_counted_not_errors() {
+    let dir = victoria_dir(
+        "vp-glitch",
+        "tree_detections.csv",
+        "frame,time_s,range_m,bearing_rad,diameter_m\n0,1.5,5.0,1.0,-0.3\n0,1.5,-5.0,1.0,0.3\n",
+    );
+    let data = read_victoria_park(dir.path(), &VictoriaParkOptions::default()).unwrap();
+    assert_eq!(
+        data.skipped_readings["Victoria Park detection: diameter not positive"],
+        1
+    );
+    assert_eq!(
+        data.skipped_readings["Victoria Park detection: range not positive"],
+        1
+    );
+    assert_eq!(data.counts().observations, 0);
+    let dir = temp_dir("carmen-inf");
+    let path = dir.path().join("inf.log");
+    std::fs::write(&path, "FLASER 2 1 inf 0 0 0 0 0 0 0 h 0\n").unwrap();
+    let data = read_carmen(&path, &CarmenOptions::default()).unwrap();
+    assert_eq!(
+        data.skipped_readings["CARMEN laser: reading not finite (no return)"],
+        1
     );
 }

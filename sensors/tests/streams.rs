@@ -327,10 +327,6 @@ fn small_inputs(dir: &Path) -> Vec<(&'static str, Input)> {
             "carmen simulated",
             Input::Carmen(simulated_carmen, defaults()),
         ),
-        (
-            "carmen empty",
-            Input::Carmen(write(dir, "empty.log", ""), defaults()),
-        ),
         ("rb2d doc", Input::Rb2d(write(dir, "doc.rb2d", rb2d_doc))),
         (
             "rb2d readers",
@@ -351,14 +347,13 @@ fn small_inputs(dir: &Path) -> Vec<(&'static str, Input)> {
 }
 
 /// Fingerprints of the in-memory readers (before streaming) on [`small_inputs`].
-const SMALL: [(&str, &str); 16] = [
+const SMALL: [(&str, &str); 15] = [
     ("carmen doc", "3 494111ae71fb4927"),
     ("carmen mounts", "4 665c2748daa32d88"),
     ("carmen mixed", "7 f4c4dd7213890870"),
     ("carmen mixed max", "7 808bb6cdb3e83df2"),
     ("carmen gzip", "7 6e6fd8a08916bf25"),
     ("carmen simulated", "1155 6720c7c8952fa35e"),
-    ("carmen empty", "0 7e8cd3accff5c2df"),
     ("rb2d doc", "4 c83dad1e23032894"),
     ("rb2d readers", "8 7bce0d3c4db6a1f8"),
     ("rb2d late", "5 1f514598094eb87a"),
@@ -534,6 +529,7 @@ fn reference_odometry_from_poses(
         clock,
         landmarks,
         skipped,
+        ..
     } = dataset;
     let mut out = Vec::with_capacity(events.len());
     let mut previous: Option<Pose2> = None;
@@ -589,13 +585,11 @@ fn reference_odometry_from_poses(
             "[data.odometry_from_poses]: {name} has no scan with a reference pose"
         ));
     }
-    Ok(Dataset {
-        name,
-        events: out,
-        clock,
-        landmarks,
-        skipped,
-    })
+    let mut dataset = Dataset::new(name, clock);
+    dataset.events = out;
+    dataset.landmarks = landmarks;
+    dataset.skipped = skipped;
+    Ok(dataset)
 }
 
 #[test]
@@ -733,7 +727,7 @@ fn streams_yield_events_before_a_malformed_line_further_down() {
     assert_eq!(scan.max_range, 5.0);
     assert_ends_with_error(
         &rest,
-        "laser.log:501: field 5 (range): expected a number, got `x`",
+        "laser.log:501:14: field 5 (range): expected a number, got `x`",
     );
 
     // rb2d.
@@ -835,7 +829,7 @@ fn streams_yield_events_before_a_malformed_line_further_down() {
     assert!(matches!(head[1].event, Event::Observations(_)));
     assert_ends_with_error(
         &rest,
-        "Robot1_Odometry.dat:1001: field 2 (odometry): expected a number, got `fast`",
+        "Robot1_Odometry.dat:1001:6: field 2 (odometry): expected a number, got `fast`",
     );
 }
 

@@ -147,6 +147,13 @@ pub trait Estimator<P: RobotPose> {
         None
     }
 
+    /// Where [`pose_covariance`](Estimator::pose_covariance) comes from, as the consistency
+    /// statistics (NEES) name it: `"gaussian"` (the default: a Gaussian estimate's covariance)
+    /// or `"particle cloud"` (the weighted covariance of a particle filter's poses).
+    fn covariance_source(&self) -> &'static str {
+        "gaussian"
+    }
+
     /// The landmark id the data gave a feature (known data association), if any.
     fn landmark_id(&self, id: crate::FeatureId) -> Option<u64> {
         let _ = id;

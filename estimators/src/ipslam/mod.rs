@@ -159,6 +159,10 @@ impl IpslamParams {
         let checks = [
             (self.particles >= 1, "particles >= 1"),
             (
+                self.particles <= crate::particles::MAX_PARTICLES,
+                "particles <= 100000 (a resource limit: each particle keeps a map and a path)",
+            ),
+            (
                 self.resample_threshold.is_finite()
                     && (0.0..=1.0).contains(&self.resample_threshold),
                 "resample_threshold in [0, 1]",
@@ -442,6 +446,10 @@ impl<P: RobotPose> Estimator<P> for Ipslam<P> {
 
     fn pose_covariance(&self) -> DMatrix<f64> {
         self.set.mean.1.clone()
+    }
+
+    fn covariance_source(&self) -> &'static str {
+        "particle cloud"
     }
 
     /// The clusters of the particle with the largest weight, as the caller's features.

@@ -17,6 +17,10 @@ use slam_core::{Error, MotionModel, Result, RobotPose};
 
 pub(crate) use ancestry::Ancestry;
 
+/// The most particles a filter may have (a resource limit, checked before anything is
+/// allocated).
+pub const MAX_PARTICLES: usize = 100_000;
+
 /// One particle: a pose hypothesis, its weight, the map conditioned on its path, and the path.
 #[derive(Clone, Debug)]
 pub(crate) struct Particle<P, M> {
@@ -59,6 +63,11 @@ impl<P: RobotPose, M: Clone + Default> ParticleSet<P, M> {
             });
         }
         slam_core::ensure_finite(pose_covariance.as_slice(), "initial pose covariance")?;
+        if count > MAX_PARTICLES {
+            return Err(Error::InvalidArgument(format!(
+                "{count} particles is above the limit of {MAX_PARTICLES}"
+            )));
+        }
         let root = matrix_sqrt(pose_covariance);
         let mut particles = Vec::with_capacity(count);
         for index in 0..count {

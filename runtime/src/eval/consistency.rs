@@ -18,6 +18,60 @@ pub struct ChiSquareSummary {
     pub mean_per_dof: f64,
     /// Fraction of values inside their two-sided 95% chi-square interval.
     pub within_95: f64,
+    /// The two-sided 95% interval of `mean_per_dof` for a consistent estimator (values
+    /// chi-square distributed with their degrees of freedom, taken as independent): a mean
+    /// outside it says the estimator is over- (above) or under-confident (below).
+    pub band_95: [f64; 2],
+}
+
+impl ChiSquareSummary {
+    /// `"1.180 (95% band 0.933-1.070)"`, or `"n/a"` for no values.
+    pub fn describe(&self) -> String {
+        if self.count == 0 {
+            return "n/a".into();
+        }
+        format!(
+            "{} (95% band {}-{})",
+            short(self.mean_per_dof),
+            short(self.band_95[0]),
+            short(self.band_95[1])
+        )
+    }
+}
+
+/// A number in 3 decimals, or in scientific notation when large.
+fn short(value: f64) -> String {
+    if value.abs() >= 1e4 {
+        format!("{value:.2e}")
+    } else {
+        format!("{value:.3}")
+    }
+}
+
+/// The two-sided 95% interval of the mean of `v_i / d_i` over values `v_i` chi-square
+/// distributed with `d_i` degrees of freedom: a chi-square with `nu = n^2 / sum(1 / d_i)`
+/// degrees of freedom divided by `nu` (the same mean and variance), through the
+/// Wilson-Hilferty approximation for large `nu`.
+pub fn mean_band_95(count: usize, inverse_dof_sum: f64) -> [f64; 2] {
+    if count == 0 || inverse_dof_sum.is_nan() || inverse_dof_sum <= 0.0 {
+        return [0.0, 0.0];
+    }
+    let nu = (count as f64).powi(2) / inverse_dof_sum;
+    let quantile = |p: f64, z: f64| -> f64 {
+        let whole = nu.round();
+        if nu <= 1000.0
+            && (nu - whole).abs() < 1e-9
+            && let Ok(q) = chi2_quantile(p, whole as usize)
+        {
+            return q / nu;
+        }
+        let a = 2.0 / (9.0 * nu);
+        (1.0 - a + z * a.sqrt()).max(0.0).powi(3)
+    };
+    [
+        quantile(0.025, -1.959_963_984_540_054),
+        quantile(0.975, 1.959_963_984_540_054),
+    ]
 }
 
 /// A [`ChiSquareSummary`] built one value at a time (a run keeps no list of its NIS values).
@@ -35,6 +89,7 @@ pub struct ChiSquareSummary {
 pub struct ChiSquareAccumulator {
     count: usize,
     sum_per_dof: f64,
+    inverse_dof_sum: f64,
     inside: usize,
     bands: BTreeMap<usize, (f64, f64)>,
 }
@@ -56,6 +111,7 @@ impl ChiSquareAccumulator {
         };
         self.inside += usize::from(value >= band.0 && value <= band.1);
         self.sum_per_dof += value / dof as f64;
+        self.inverse_dof_sum += 1.0 / dof as f64;
         Ok(())
     }
 
@@ -68,6 +124,7 @@ impl ChiSquareAccumulator {
             count: self.count,
             mean_per_dof: self.sum_per_dof / self.count as f64,
             within_95: self.inside as f64 / self.count as f64,
+            band_95: mean_band_95(self.count, self.inverse_dof_sum),
         }
     }
 }
@@ -94,7 +151,8 @@ pub struct Record {
 
 /// The robot-pose NEES `e^T C^-1 e` (3 degrees of freedom) at every estimate that has a true
 /// pose at the same time, `e = truth ⊟ estimate`; `truth` maps the bits of a time to the
-/// true pose. A pose known exactly (the start, covariance zero) has none.
+/// true pose. A pose whose covariance is singular (the start, known exactly; a collapsed
+/// particle cloud) has none: [`singular_steps`] counts them.
 pub fn pose_nees(estimates: &[Record], truth: &BTreeMap<u64, Pose2>) -> Vec<(f64, f64)> {
     estimates
         .iter()
@@ -109,4 +167,38 @@ pub fn pose_nees(estimates: &[Record], truth: &BTreeMap<u64, Pose2>) -> Vec<(f64
             Some((r.time, (e.transpose() * cholesky.inverse() * e)[(0, 0)]))
         })
         .collect()
+}
+
+/// How many estimates with a true pose have no NEES because their covariance is singular
+/// (not positive definite, or a standard deviation below 1e-9).
+pub fn singular_steps(estimates: &[Record], truth: &BTreeMap<u64, Pose2>) -> usize {
+    let with_truth = estimates
+        .iter()
+        .filter(|r| truth.contains_key(&r.time.to_bits()))
+        .count();
+    with_truth - pose_nees(estimates, truth).len()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_band_of_the_mean_narrows_with_the_count() {
+        // One value of 3 dof: the band of chi2(3) / 3.
+        let [lo, hi] = mean_band_95(1, 1.0 / 3.0);
+        assert!((lo - 0.2157952826238981 / 3.0).abs() < 1e-9, "{lo}");
+        assert!((hi - 9.348403604496145 / 3.0).abs() < 1e-9, "{hi}");
+        // Many values: about 1 +- 1.96 sqrt(2 / nu).
+        let [lo, hi] = mean_band_95(10_000, 10_000.0 / 3.0);
+        let half = 1.96 * (2.0_f64 / 30_000.0).sqrt();
+        assert!((lo - (1.0 - half)).abs() < 1e-3 && (hi - (1.0 + half)).abs() < 1e-3);
+        assert_eq!(mean_band_95(0, 0.0), [0.0, 0.0]);
+        let summary = chi_square_summary(&[(3.0, 3), (6.0, 3)]).unwrap();
+        assert!(
+            summary.describe().starts_with("1.500 (95% band 0."),
+            "{}",
+            summary.describe()
+        );
+    }
 }

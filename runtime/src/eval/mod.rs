@@ -19,7 +19,8 @@ use slam_sensors::data::StampedPose;
 use crate::error::Result;
 
 pub use consistency::{
-    ChiSquareAccumulator, ChiSquareSummary, Record, chi_square_summary, pose_nees,
+    ChiSquareAccumulator, ChiSquareSummary, Record, chi_square_summary, mean_band_95, pose_nees,
+    singular_steps,
 };
 pub use map::{
     MapError, confirmed, coordinate_covariance, feature_counts, map_error_against_landmarks,

@@ -124,6 +124,20 @@ pub struct ErrorStats {
 }
 
 impl ErrorStats {
+    /// Whether every statistic is a finite number.
+    pub fn is_finite(&self) -> bool {
+        [
+            self.rmse,
+            self.mean,
+            self.median,
+            self.std,
+            self.min,
+            self.max,
+        ]
+        .iter()
+        .all(|v| v.is_finite())
+    }
+
     /// The statistics of `errors`; an empty list is an error.
     pub fn from_errors(errors: &[f64]) -> Result<Self> {
         if errors.is_empty() {
@@ -271,9 +285,11 @@ pub fn umeyama(from: &[Vector3<f64>], to: &[Vector3<f64>], with_scale: bool) -> 
     covariance /= count;
     variance_from /= count;
     if !(covariance.iter().all(|v| v.is_finite()) && variance_from.is_finite()) {
-        return Err(RuntimeError::Eval(
-            "alignment failed: coordinates too large".into(),
-        ));
+        let largest = from.iter().chain(to).map(|p| p.amax()).fold(0.0, f64::max);
+        return Err(RuntimeError::Eval(format!(
+            "the sums of squares of the coordinates overflow (coordinates up to {largest:e} m): \
+             no alignment can be computed; check the values and units of the trajectories"
+        )));
     }
     // The general (Golub-Kahan) SVD of a dynamic matrix, singular values descending.
     // nalgebra's special path for `Matrix3` goes through the eigenvectors of

@@ -61,6 +61,94 @@ pub fn load_prior(spec: &str, files: &[PathBuf]) -> Result<Prior> {
     Ok(library.compile(&name)?)
 }
 
+/// The inference engine's settings, checked key by key (the conditions of
+/// [`Params::validate`], whose own message lists every setting): the error names the key.
+fn check_inference(p: &Params) -> Result<()> {
+    let checks = [
+        (
+            "bound_sigmas",
+            p.bound_sigmas,
+            p.bound_sigmas > 0.0,
+            "positive",
+        ),
+        (
+            "inlier_probability",
+            p.inlier_probability,
+            p.inlier_probability > 0.0 && p.inlier_probability < 1.0,
+            "in (0, 1)",
+        ),
+        (
+            "feasibility_tolerance",
+            p.feasibility_tolerance,
+            p.feasibility_tolerance > 0.0,
+            "positive",
+        ),
+        (
+            "penalty_start",
+            p.penalty_start,
+            p.penalty_start > 0.0,
+            "positive",
+        ),
+        (
+            "penalty_factor",
+            p.penalty_factor,
+            p.penalty_factor > 1.0,
+            "above 1",
+        ),
+        (
+            "penalty_max",
+            p.penalty_max,
+            p.penalty_max >= p.penalty_start,
+            "at least penalty_start",
+        ),
+        (
+            "barrier_start",
+            p.barrier_start,
+            p.barrier_start > 0.0,
+            "positive",
+        ),
+        (
+            "barrier_factor",
+            p.barrier_factor,
+            p.barrier_factor > 0.0 && p.barrier_factor < 1.0,
+            "in (0, 1)",
+        ),
+        (
+            "min_normal_bound_deg",
+            p.min_normal_bound_deg,
+            p.min_normal_bound_deg >= 0.0,
+            "non-negative",
+        ),
+        (
+            "stall_ratio",
+            p.stall_ratio,
+            p.stall_ratio.is_finite(),
+            "finite",
+        ),
+        (
+            "max_incidence_deg",
+            p.max_incidence_deg,
+            p.max_incidence_deg.is_finite(),
+            "finite",
+        ),
+    ];
+    for (key, value, ok, what) in checks {
+        if !ok || value.is_nan() {
+            return Err(RuntimeError::setting(
+                "frontend.prior.inference",
+                format!("{key} must be {what}, got {value}"),
+            ));
+        }
+    }
+    if p.max_newton_steps == 0 {
+        return Err(RuntimeError::setting(
+            "frontend.prior.inference",
+            "max_newton_steps must be at least 1, got 0",
+        ));
+    }
+    Ok(())
+}
+
 /// A structure prior that segments scans into walls.
 #[derive(Debug)]
 pub(super) struct PriorSegmenter {
@@ -75,6 +163,7 @@ impl PriorSegmenter {
     pub(super) fn new(settings: &PriorSegmentationConfig) -> Result<Self> {
         let prior = load_prior(&settings.prior, &settings.files)
             .map_err(|e| RuntimeError::setting("frontend.prior", e.to_string()))?;
+        check_inference(&settings.inference)?;
         settings
             .inference
             .validate()
@@ -126,5 +215,30 @@ impl PriorSegmenter {
                     .collect()
             })
             .collect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_engine_settings_name_their_key_not_a_struct_dump() {
+        let params = Params {
+            bound_sigmas: f64::NAN,
+            ..Params::default()
+        };
+        let error = check_inference(&params).unwrap_err().to_string();
+        assert_eq!(
+            error,
+            "[frontend.prior.inference] bound_sigmas must be positive, got NaN"
+        );
+        let params = Params {
+            barrier_factor: 2.0,
+            ..Params::default()
+        };
+        let error = check_inference(&params).unwrap_err().to_string();
+        assert!(error.contains("barrier_factor must be in (0, 1)") && !error.contains("Params {"));
+        assert!(check_inference(&Params::default()).is_ok());
     }
 }

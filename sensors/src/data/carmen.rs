@@ -17,8 +17,18 @@
 //!   poses give [`PoseIncrement`]s.
 //!
 //! Every other line (`NEFF`, `PARAM`, `SYNC`, `TRUEPOS`, `#` comments, ...) is skipped and
-//! counted in [`Dataset::skipped`] by its first word (comments under `"#"`); blank lines are
-//! ignored.
+//! counted in [`Dataset::skipped`] by its first word (comments under `"#"`, words that are not
+//! a message name, such as binary garbage, under `"(not a CARMEN message)"`); blank lines are
+//! ignored. A file without any of the four records above is an error (an empty file, or
+//! something else given as a CARMEN log).
+//!
+//! **Input policy** (see [`crate::data`]). A laser reading that is negative or not finite
+//! (`nan`, `inf`: some tools write those for "no return") is a glitch: the beam counts as no
+//! return, and the reading is counted in [`Dataset::skipped_readings`]. Units are checked on
+//! the first [`UNIT_SCANS`] laser lines: readings whose median is above
+//! [`MAX_PLAUSIBLE_MEDIAN_M`] are an error (centimetres or millimetres for metres), and so is
+//! a `ROBOTLASER1` line whose angles span more than a turn (degrees for radians); when most of
+//! those scans have no reading below their maximum range, a warning names the maximum range.
 //!
 //! **Poses are references, not truth.** The robot pose of a laser line becomes an
 //! [`Event::GroundTruth`] with [`TruthKind::Reference`]: in the Radish "corrected" logs it is
@@ -77,6 +87,16 @@ impl Default for CarmenOptions {
         }
     }
 }
+
+/// How many laser lines the unit checks look at.
+pub const UNIT_SCANS: usize = 20;
+
+/// The largest plausible median laser reading of the first [`UNIT_SCANS`] scans, m: above
+/// it, the readings are taken to be in centimetres or millimetres (an error).
+pub const MAX_PLAUSIBLE_MEDIAN_M: f64 = 100.0;
+
+/// The key under which lines whose first word is not a message name are counted.
+const NOT_A_MESSAGE: &str = "(not a CARMEN message)";
 
 /// A laser line before its maximum range is known.
 struct LaserLine {
@@ -137,7 +157,7 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<Dataset> {
 /// assert_eq!(stream.next().unwrap().unwrap().time, 1.0); // the scan
 /// assert_eq!(stream.next().unwrap().unwrap().time, 1.0); // its reference pose
 /// let e = stream.next().unwrap().unwrap_err().to_string();
-/// assert!(e.ends_with("carmen-stream-doc.log:2: field 8 (ipc_timestamp): expected a number, got `x`"), "{e}");
+/// assert!(e.ends_with("carmen-stream-doc.log:2:18: field 8 (ipc_timestamp): expected a number, got `x`"), "{e}");
 /// assert!(stream.next().is_none());
 /// ```
 pub fn stream_carmen(path: &Path, options: &CarmenOptions) -> Result<EventStream> {
@@ -160,6 +180,8 @@ pub fn stream_carmen(path: &Path, options: &CarmenOptions) -> Result<EventStream
         skipped: skipped.clone(),
         file_max: None,
         previous_odometry: None,
+        records: 0,
+        scans: ScanEvidence::default(),
     };
     Ok(EventStream::new(info, Pump::new(reader)).with_skipped(skipped))
 }
@@ -172,12 +194,16 @@ struct CarmenReader {
     /// The largest reading of the file, once a line has needed it.
     file_max: Option<f64>,
     previous_odometry: Option<Pose2>,
+    /// Laser and odometry lines read.
+    records: usize,
+    /// The unit evidence of the first scans.
+    scans: ScanEvidence,
 }
 
 impl Step for CarmenReader {
     fn step(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<bool> {
         let Some(next) = self.lines.next() else {
-            return Ok(false);
+            return self.end().map(|()| false);
         };
         let (line, content) = next?;
         let path = self.lines.path();
@@ -185,6 +211,7 @@ impl Step for CarmenReader {
         let time = line as f64;
         match parse_line(&fields, &self.options)? {
             Some(Record::Laser(laser)) => {
+                self.records += 1;
                 let max_range = match self.options.max_range.or(laser.max_range) {
                     Some(max_range) => max_range,
                     None => match self.file_max {
@@ -195,6 +222,7 @@ impl Step for CarmenReader {
                 let pose = laser.robot_pose;
                 let (scan, robot_from_sensor) = to_scan(laser, self.options.min_range, max_range)
                     .map_err(|e| at(path, line, e))?;
+                self.check_scan(&scan, line)?;
                 out.push_back(TimedEvent {
                     time,
                     event: Event::Scan {
@@ -211,6 +239,7 @@ impl Step for CarmenReader {
                 });
             }
             Some(Record::Odometry(pose)) => {
+                self.records += 1;
                 if let Some(previous) = self.previous_odometry {
                     let step =
                         PoseIncrement::between(&previous, &pose, &self.options.odometry_noise)
@@ -223,10 +252,138 @@ impl Step for CarmenReader {
                 self.previous_odometry = Some(pose);
             }
             None if content.trim_start().starts_with('#') => self.skipped.count("#"),
-            None if fields.len() > 0 => self.skipped.count(fields.first()),
+            None if fields.len() > 0 => self.skipped.count(message_key(fields.first())),
             None => {}
         }
         Ok(true)
+    }
+}
+
+impl CarmenReader {
+    /// Counts the impossible readings of a scan and gathers the unit evidence of the first
+    /// scans; an error when the readings look like centimetres.
+    fn check_scan(&mut self, scan: &LaserScan, line: usize) -> Result<()> {
+        for &range in &scan.ranges {
+            if !range.is_finite() {
+                self.skipped
+                    .count_reading("CARMEN laser: reading not finite (no return)");
+            } else if range < 0.0 {
+                self.skipped
+                    .count_reading("CARMEN laser: negative reading (no return)");
+            }
+        }
+        self.scans.add(scan);
+        self.scans.check(self.lines.path(), line, &self.skipped)
+    }
+
+    /// At the end of the file: the unit checks of a short log, and an error when the file
+    /// held no record at all.
+    fn end(&mut self) -> Result<()> {
+        let path = self.lines.path();
+        let line = self.lines.number();
+        self.scans.decide(path, line, &self.skipped)?;
+        if self.records > 0 {
+            return Ok(());
+        }
+        let skipped = self.skipped.get();
+        if skipped.is_empty() {
+            return Err(SensorError::Input(format!(
+                "{}: no CARMEN record: the file is empty",
+                path.display()
+            )));
+        }
+        let words: Vec<String> = skipped
+            .iter()
+            .take(5)
+            .map(|(word, n)| format!("{word} x{n}"))
+            .collect();
+        Err(SensorError::Input(format!(
+            "{}: no CARMEN record (FLASER, RLASER, ROBOTLASER1 or ODOM) in its {line} lines \
+             (first words: {}): is it a CARMEN log?",
+            path.display(),
+            words.join(", ")
+        )))
+    }
+}
+
+/// The key under which an unused line is counted: its first word when that looks like a
+/// message name (letters, digits, `_`, at most 40), so that garbage cannot grow the counts.
+fn message_key(word: &str) -> &str {
+    let name = !word.is_empty()
+        && word.len() <= 40
+        && word
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-');
+    if name { word } else { NOT_A_MESSAGE }
+}
+
+/// The readings of the first [`UNIT_SCANS`] scans, for the unit checks.
+#[derive(Debug, Default)]
+struct ScanEvidence {
+    /// The median valid reading of each scan that has one.
+    medians: Vec<f64>,
+    /// Scans seen, and those without a valid reading.
+    seen: usize,
+    empty: usize,
+    /// The largest maximum range of those scans.
+    max_range: f64,
+    decided: bool,
+}
+
+impl ScanEvidence {
+    fn add(&mut self, scan: &LaserScan) {
+        if self.seen >= UNIT_SCANS {
+            return;
+        }
+        self.seen += 1;
+        self.max_range = self.max_range.max(scan.max_range);
+        let mut valid: Vec<f64> = scan.points().iter().map(|p| p.range).collect();
+        match super::units::median(&mut valid) {
+            Some(median) => self.medians.push(median),
+            None => self.empty += 1,
+        }
+    }
+
+    /// Decides once [`UNIT_SCANS`] scans are in.
+    fn check(&mut self, file: &Path, line: usize, skipped: &SkipCounter) -> Result<()> {
+        if self.seen < UNIT_SCANS {
+            return Ok(());
+        }
+        self.decide(file, line, skipped)
+    }
+
+    /// Decides on the scans seen (once).
+    fn decide(&mut self, file: &Path, line: usize, skipped: &SkipCounter) -> Result<()> {
+        if self.decided || self.seen == 0 {
+            return Ok(());
+        }
+        self.decided = true;
+        let mut medians = std::mem::take(&mut self.medians);
+        if let Some(median) = super::units::median(&mut medians)
+            && median > MAX_PLAUSIBLE_MEDIAN_M
+        {
+            return Err(SensorError::parse(
+                file,
+                line,
+                format!(
+                    "the median laser reading of the first {} scans is {median:.1}: CARMEN \
+                     ranges are metres, these look like centimetres or millimetres",
+                    self.seen
+                ),
+            ));
+        }
+        if 2 * self.empty > self.seen {
+            skipped.warn(format!(
+                "{}: {} of the first {} scans have no reading below their maximum range \
+                 ({} m): is the maximum range right (the ROBOTLASER1 maximum_range field, or \
+                 the largest reading of the file)?",
+                file.display(),
+                self.empty,
+                self.seen,
+                self.max_range
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -260,8 +417,8 @@ fn largest_range(path: &Path) -> Result<f64> {
     Ok(largest)
 }
 
-/// The largest reading of a laser line (folded from 0 as the reader's ranges would be), or
-/// `None` for other lines and for readings that do not parse as finite numbers.
+/// The largest finite reading of a laser line (folded from 0), or `None` for other lines and
+/// for readings that do not parse as numbers.
 fn line_largest_range(content: &str) -> Option<f64> {
     let mut fields = content.split_whitespace();
     let first_reading = match fields.next()? {
@@ -274,10 +431,9 @@ fn line_largest_range(content: &str) -> Option<f64> {
     let mut largest = 0.0;
     for _ in 0..n {
         let range: f64 = fields.next()?.parse().ok()?;
-        if !range.is_finite() {
-            return None;
+        if range.is_finite() {
+            largest = f64::max(largest, range);
         }
-        largest = f64::max(largest, range);
     }
     Some(largest)
 }
@@ -332,7 +488,11 @@ fn ranges(fields: &Fields, start: usize, n: usize) -> Result<Vec<f64>> {
     if n == 0 {
         return Err(fields.error("a laser line needs at least one reading"));
     }
-    (start..start + n).map(|i| fields.f64(i, "range")).collect()
+    // A reading that is not finite is a glitch (no return), counted by the reader; one that
+    // is not a number is a syntax error.
+    (start..start + n)
+        .map(|i| fields.number(i, "range"))
+        .collect()
 }
 
 /// The trailing `ipc_timestamp ipc_hostname logger_timestamp`, starting at `index`: checked
@@ -384,6 +544,15 @@ fn parse_robot_laser(fields: &Fields) -> Result<LaserLine> {
     check_timestamps(fields, base + 11)?;
     if resolution < 0.0 {
         return Err(fields.error(format!("angular resolution {resolution} is negative")));
+    }
+    let turn = 2.0 * std::f64::consts::PI + 1e-6;
+    let span = resolution * n.saturating_sub(1) as f64;
+    if start_angle.abs() > turn || span > turn {
+        return Err(fields.error(format!(
+            "ROBOTLASER1 angles look like degrees: start_angle {start_angle}, \
+             angular_resolution {resolution} over {n} readings spans {span:.2} rad; CARMEN \
+             angles are radians"
+        )));
     }
     let robot_pose = Pose2::new(rx, ry, rtheta);
     let mount = robot_pose.between(&Pose2::new(lx, ly, ltheta));
@@ -652,11 +821,7 @@ mod tests {
             ),
             (
                 "FLASER 2 1.0 x 0 0 0 0 0 0 0 h 0\n",
-                ":1: field 4 (range): expected a number, got `x`",
-            ),
-            (
-                "FLASER 2 1.0 nan 0 0 0 0 0 0 0 h 0\n",
-                ":1: field 4 (range): value `nan` is not finite",
+                ":1:14: field 4 (range): expected a number, got `x`",
             ),
             (
                 "FLASER 99999999999 1 h\n",

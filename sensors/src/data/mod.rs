@@ -33,6 +33,7 @@ pub mod mrclam;
 pub mod pose_odometry;
 pub mod rb2d;
 pub mod tum;
+mod units;
 pub mod victoria_park;
 
 pub use carmen::{CarmenOptions, read_carmen, stream_carmen};
@@ -53,6 +54,7 @@ use crate::events::{Event, TimedEvent};
 pub(crate) struct Fields<'a> {
     file: &'a Path,
     line: usize,
+    text: &'a str,
     fields: Vec<&'a str>,
 }
 
@@ -62,6 +64,7 @@ impl<'a> Fields<'a> {
         Fields {
             file,
             line,
+            text,
             fields: text.split_whitespace().collect(),
         }
     }
@@ -71,6 +74,7 @@ impl<'a> Fields<'a> {
         Fields {
             file,
             line,
+            text,
             fields: text.split(',').map(str::trim).collect(),
         }
     }
@@ -95,6 +99,18 @@ impl<'a> Fields<'a> {
         SensorError::parse(self.file, self.line, message)
     }
 
+    /// A parse error at field `index` (its column), or at the end of the line when the line
+    /// has no such field.
+    pub(crate) fn field_error(&self, index: usize, message: impl Into<String>) -> SensorError {
+        let offset = match self.fields.get(index) {
+            // A field is a slice of the line's text: its offset is the distance between them.
+            Some(field) => (field.as_ptr() as usize).saturating_sub(self.text.as_ptr() as usize),
+            None => self.text.len(),
+        };
+        let column = self.text.get(..offset).map_or(1, |s| s.chars().count() + 1);
+        SensorError::parse_at(self.file, self.line, column, message)
+    }
+
     /// A constructor's error reported at this line.
     pub(crate) fn wrap(&self, error: SensorError) -> SensorError {
         at(self.file, self.line, error)
@@ -115,11 +131,14 @@ impl<'a> Fields<'a> {
     /// Field `index` (0-based), or an error naming `what` when the line is too short.
     pub(crate) fn get(&self, index: usize, what: &str) -> Result<&'a str> {
         self.fields.get(index).copied().ok_or_else(|| {
-            self.error(format!(
-                "missing field {} ({what}): the line has only {} fields",
-                index + 1,
-                self.fields.len()
-            ))
+            self.field_error(
+                index,
+                format!(
+                    "missing field {} ({what}): the line has only {} fields",
+                    index + 1,
+                    self.fields.len()
+                ),
+            )
         })
     }
 
@@ -129,12 +148,20 @@ impl<'a> Fields<'a> {
         if value.is_finite() {
             Ok(value)
         } else {
-            Err(self.error(format!(
-                "field {} ({what}): value `{}` is not finite",
-                index + 1,
-                self.fields[index]
-            )))
+            Err(self.field_error(
+                index,
+                format!(
+                    "field {} ({what}): value `{}` is not finite",
+                    index + 1,
+                    self.fields[index]
+                ),
+            ))
         }
+    }
+
+    /// Field `index` as a number, finite or not (`nan`, `inf`).
+    pub(crate) fn number(&self, index: usize, what: &str) -> Result<f64> {
+        self.parse(index, what, "a number")
     }
 
     /// Fields `index..index + N` as finite numbers.
@@ -164,10 +191,13 @@ impl<'a> Fields<'a> {
     fn parse<T: FromStr>(&self, index: usize, what: &str, kind: &str) -> Result<T> {
         let text = self.get(index, what)?;
         text.parse().map_err(|_| {
-            self.error(format!(
-                "field {} ({what}): expected {kind}, got `{text}`",
-                index + 1
-            ))
+            self.field_error(
+                index,
+                format!(
+                    "field {} ({what}): expected {kind}, got `{text}`",
+                    index + 1
+                ),
+            )
         })
     }
 }
@@ -229,6 +259,10 @@ pub(crate) fn at(file: &Path, line: usize, error: SensorError) -> SensorError {
     SensorError::parse(file, line, reason(&error))
 }
 
+/// The longest line a reader takes, bytes: a longer one is an error, so that a file with no
+/// line breaks (a binary file given by mistake) is not read whole into memory.
+pub const MAX_LINE_BYTES: usize = 16 << 20;
+
 /// The lines of a text file, read one at a time: gunzipped when the file starts with the gzip
 /// magic bytes `1f 8b`, with 1-based numbers, `\n` and `\r\n` endings stripped as
 /// [`str::lines`] does, and invalid UTF-8 replaced as [`read_text`] does.
@@ -274,6 +308,11 @@ impl Lines {
     pub(crate) fn path(&self) -> &Path {
         &self.path
     }
+
+    /// The number of the last line read (0 before the first).
+    pub(crate) fn number(&self) -> usize {
+        self.number
+    }
 }
 
 impl Iterator for Lines {
@@ -285,10 +324,25 @@ impl Iterator for Lines {
             return None;
         }
         self.buffer.clear();
-        match self.reader.read_until(b'\n', &mut self.buffer) {
+        let limit = MAX_LINE_BYTES as u64 + 1;
+        match (&mut self.reader)
+            .take(limit)
+            .read_until(b'\n', &mut self.buffer)
+        {
             Ok(0) => {
                 self.done = true;
                 None
+            }
+            Ok(n) if n > MAX_LINE_BYTES => {
+                self.done = true;
+                Some(Err(SensorError::parse(
+                    &self.path,
+                    self.number + 1,
+                    format!(
+                        "line longer than {} MiB (is this a text log?)",
+                        MAX_LINE_BYTES >> 20
+                    ),
+                )))
             }
             Ok(_) => {
                 self.number += 1;
@@ -634,7 +688,7 @@ mod tests {
         assert_eq!(f.f64(1, "x").unwrap(), 1.5);
         assert_eq!(
             f.f64(2, "y").unwrap_err().to_string(),
-            "a.log:7: field 3 (y): expected a number, got `abc`"
+            "a.log:7:7: field 3 (y): expected a number, got `abc`"
         );
         assert!(
             f.f64(3, "z")

@@ -313,6 +313,9 @@ impl<M: Iterator<Item = Result<Measurement>>> Groups<M> {
         let mut next = Some(first);
         while let Some(m) = next.take() {
             match self.barcodes.get(&m.barcode) {
+                Some(&subject) if LANDMARKS.contains(&subject) && m.range <= 0.0 => {
+                    self.skipped.count_reading("MR.CLAM: range not positive");
+                }
                 Some(&subject) if LANDMARKS.contains(&subject) => {
                     observations.push(observation(&self.file, &m, subject, &self.options)?);
                 }
@@ -469,22 +472,17 @@ mod tests {
             (
                 "Robot1_Measurement.dat",
                 "10.0 72 abc 0.1\n",
-                "Robot1_Measurement.dat:5: field 3 (range and bearing): expected a number",
-            ),
-            (
-                "Robot1_Measurement.dat",
-                "10.0 72 -1 0.1\n",
-                "Robot1_Measurement.dat:5: range must be positive",
+                "Robot1_Measurement.dat:5:9: field 3 (range and bearing): expected a number",
             ),
             (
                 "Robot1_Measurement.dat",
                 "10.0 7.5 1 0.1\n",
-                "Robot1_Measurement.dat:5: field 2 (barcode): expected a non-negative integer",
+                "Robot1_Measurement.dat:5:6: field 2 (barcode): expected a non-negative integer",
             ),
             (
                 "Landmark_Groundtruth.dat",
                 "6 1 inf 0 0\n",
-                "Landmark_Groundtruth.dat:5: field 3 (landmark): value `inf` is not finite",
+                "Landmark_Groundtruth.dat:5:5: field 3 (landmark): value `inf` is not finite",
             ),
             (
                 "Barcodes.dat",
@@ -499,5 +497,18 @@ mod tests {
                 .to_string();
             assert!(e.contains(expected), "{e} vs {expected}");
         }
+    }
+
+    #[test]
+    fn a_negative_range_is_skipped_and_counted() {
+        let dir = write_dir("negative", &[]);
+        let whole = read_mrclam(dir.path(), 1, &MrclamOptions::default()).unwrap();
+        let dir = write_dir(
+            "negative",
+            &[("Robot1_Measurement.dat", "10.0 72 -1 0.1\n")],
+        );
+        let data = read_mrclam(dir.path(), 1, &MrclamOptions::default()).unwrap();
+        assert_eq!(data.skipped_readings["MR.CLAM: range not positive"], 1);
+        assert!(whole.skipped_readings.is_empty());
     }
 }

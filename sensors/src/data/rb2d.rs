@@ -11,6 +11,14 @@
 //! | `OBS k id range bearing` | all `OBS` of one step form one [`Event::Observations`] of [`RangeBearing`]s, `landmark_id` `Some(id)` for `id >= 0`, `None` for `-1` |
 //! | `GT k x y th` | [`Event::GroundTruth`] of kind [`TruthKind::True`] |
 //!
+//! An `OBS` whose range is not positive, or beyond `PARAM max_range` by more than 5
+//! `sigma_r`, is a glitch of the sensor: it is skipped and counted
+//! ([`EventStream::skipped_readings`]), the rest of the line is still checked. The first pass
+//! (which also collects the `LM` lines) checks the units: bearings or headings in degrees, and
+//! ranges or odometry in centimetres or millimetres (against `max_range`, and against the
+//! distances between the `GT` poses and the `LM` landmarks where the log has both) are errors
+//! of [`stream_rb2d`] naming the file and the unit. A file without any record is an error too.
+//!
 //! Event times are `k * dt` seconds with `dt` the `PARAM dt`. Records are sorted by step,
 //! and within one step come `ODOM`, then `OBS`, then `GT`; a record out of that order is a
 //! "step going backwards" error. A record that needs a parameter (`ODOM`: `dt`, `sigma_v`,
@@ -28,6 +36,7 @@ use std::path::Path;
 use slam_core::nalgebra::{Matrix3, Vector2, Vector3};
 use slam_core::{Observation, Pose2, Pose3};
 
+use super::units::Rb2dEvidence;
 use super::{Fields, Lines, write_atomically};
 use crate::error::{Result, SensorError};
 use crate::events::{
@@ -93,6 +102,8 @@ impl Params {
 #[derive(Default)]
 struct State {
     params: Params,
+    /// Where skipped readings are counted.
+    skipped: SkipCounter,
     /// `(step, rank)` of the last `ODOM` (0), `OBS` (1) or `GT` (2).
     last: Option<(u64, u8)>,
     /// The step and the observations of the `OBS` lines read last.
@@ -133,15 +144,31 @@ pub fn read_rb2d(path: &Path) -> Result<Dataset> {
 /// malformed line (an `LM` line too) is an `Err` item when the stream reaches it.
 pub fn stream_rb2d(path: &Path) -> Result<EventStream> {
     let mut landmarks = Vec::new();
+    let mut evidence = Rb2dEvidence::default();
+    let mut records = 0usize;
     for next in Lines::open(path)? {
         let (line, content) = next?;
         let fields = Fields::whitespace(path, line, &content);
-        if fields.first() == "LM"
+        let first = fields.first();
+        if first.is_empty() || first.starts_with('#') {
+            continue;
+        }
+        records += 1;
+        evidence.add(&content.split_whitespace().collect::<Vec<_>>());
+        if first == "LM"
             && let Ok(landmark) = parse_landmark(&fields)
         {
             landmarks.push(landmark);
         }
     }
+    if records == 0 {
+        return Err(SensorError::Input(format!(
+            "{}: no rb2d record (PARAM, LM, ODOM, OBS or GT): the file is empty or has only \
+             comments",
+            path.display()
+        )));
+    }
+    evidence.check(path)?;
     let name = path
         .file_name()
         .unwrap_or(path.as_os_str())
@@ -156,7 +183,10 @@ pub fn stream_rb2d(path: &Path) -> Result<EventStream> {
     let reader = Rb2dReader {
         lines: Lines::open(path)?,
         skipped: skipped.clone(),
-        state: State::default(),
+        state: State {
+            skipped: skipped.clone(),
+            ..State::default()
+        },
     };
     Ok(EventStream::new(info, Pump::new(reader)).with_skipped(skipped))
 }
@@ -312,6 +342,10 @@ fn read_observation(
         })?),
     };
     let k = step(fields, 1, state, out)?;
+    if let Some(reason) = impossible_range(range, sigma_r, &state.params) {
+        state.skipped.count_reading(reason);
+        return Ok(());
+    }
     let model =
         RangeBearing::new(range, bearing, sigma_r, sigma_b).map_err(|e| fields.wrap(e.into()))?;
     let observation = Observation {
@@ -325,6 +359,18 @@ fn read_observation(
         .1
         .push(observation);
     Ok(())
+}
+
+/// Why an `OBS` range is physically impossible (a glitch to skip), if it is.
+fn impossible_range(range: f64, sigma_r: f64, params: &Params) -> Option<&'static str> {
+    let max_range = params.values[5].map(|(v, _)| v);
+    if range <= 0.0 {
+        Some("rb2d OBS: range not positive")
+    } else if max_range.is_some_and(|m| range > m + 5.0 * sigma_r) {
+        Some("rb2d OBS: range beyond max_range + 5 sigma_r")
+    } else {
+        None
+    }
 }
 
 fn read_truth(fields: &Fields, state: &mut State, out: &mut VecDeque<TimedEvent>) -> Result<()> {

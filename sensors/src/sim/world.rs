@@ -117,6 +117,9 @@ pub struct LandmarkSpec {
     pub y: f64,
 }
 
+/// The most laps a world may ask for (a resource limit).
+pub const MAX_LAPS: usize = 10_000;
+
 /// The robot and how it moves: either through `waypoints` (in order, `laps` times, steered by
 /// a proportional controller at up to `speed` and `max_yaw_rate_deg`, a waypoint being
 /// reached within `reach`), or with constant `controls` for a fixed number of steps (then
@@ -423,6 +426,46 @@ impl World {
         }
     }
 
+    /// The resource limits, checked before anything is allocated: an error names the key
+    /// and the limit.
+    fn check_limits(&self) -> Result<()> {
+        let over = |key: &str, value: usize, limit: usize, why: &str| {
+            Err(SensorError::World(format!(
+                "{}: {key} = {value} is above the limit of {limit} ({why})",
+                self.name
+            )))
+        };
+        if let Some(c) = &self.robot.controls
+            && c.steps > super::MAX_STEPS
+        {
+            return over(
+                "[robot] controls.steps",
+                c.steps,
+                super::MAX_STEPS,
+                "a pose per step is kept",
+            );
+        }
+        if self.robot.laps > MAX_LAPS {
+            return over(
+                "[robot] laps",
+                self.robot.laps,
+                MAX_LAPS,
+                "each lap drives every waypoint",
+            );
+        }
+        if let Some(l) = &self.laser
+            && l.beams > crate::scan::MAX_BEAMS
+        {
+            return over(
+                "[laser] beams",
+                l.beams,
+                crate::scan::MAX_BEAMS,
+                "a reading per beam and scan",
+            );
+        }
+        Ok(())
+    }
+
     /// The robot's start pose.
     pub fn start_pose(&self) -> Pose2 {
         Pose2::new(
@@ -490,6 +533,7 @@ impl World {
 
     /// Checks every number and the consistency of the description.
     pub fn validate(&self) -> Result<()> {
+        self.check_limits()?;
         let bad = |what: String| Err(SensorError::World(format!("{}: {what}", self.name)));
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
         for (i, chain) in self.walls.iter().enumerate() {

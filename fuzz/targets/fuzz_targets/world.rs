@@ -1,0 +1,6 @@
+//! `cargo fuzz run world`: see fuzz/README.md.
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    slam_fuzz::Target::World.run(data);
+});

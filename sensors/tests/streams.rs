@@ -492,7 +492,7 @@ fn laser_odometry_streams_the_events_of_the_in_memory_version() {
     check_laser_odometry(
         || simulate_stream(&world, 1).unwrap().events,
         300,
-        "241 ea44acc0e8cc41f6",
+        "241 69fe44a6153286ac",
         LaserOdometryReport {
             matched: 59,
             refused: 0,
@@ -503,10 +503,10 @@ fn laser_odometry_streams_the_events_of_the_in_memory_version() {
     check_laser_odometry(
         || stream_carmen(&intel, &CarmenOptions::default()).unwrap(),
         2000,
-        "596 839b7f467b516392",
+        "614 ca3f6f89f7fe21d8",
         LaserOdometryReport {
-            matched: 82,
-            refused: 8,
+            matched: 80,
+            refused: 10,
         },
     );
 }

@@ -42,6 +42,8 @@ pub struct DivergenceMonitor {
     failed_nis_per_dof: f64,
     /// The first divergence found.
     divergence: Option<Divergence>,
+    /// [`upper_quantile`] by degrees of freedom, computed once each (NaN: not yet).
+    bounds: Vec<f64>,
 }
 
 impl DivergenceMonitor {
@@ -56,6 +58,20 @@ impl DivergenceMonitor {
         }
     }
 
+    /// [`upper_quantile`] of `dof`, remembered (a quantile costs an iterative search).
+    fn bound(&mut self, dof: usize) -> f64 {
+        if dof >= 1024 {
+            return upper_quantile(dof);
+        }
+        if self.bounds.len() <= dof {
+            self.bounds.resize(dof + 1, f64::NAN);
+        }
+        if self.bounds[dof].is_nan() {
+            self.bounds[dof] = upper_quantile(dof);
+        }
+        self.bounds[dof]
+    }
+
     /// Counts one update's innovation test.
     fn test(&mut self, time: f64, report: &UpdateReport) {
         let (nis, dof) = report
@@ -65,7 +81,7 @@ impl DivergenceMonitor {
         if dof == 0 {
             return;
         }
-        if nis <= upper_quantile(dof) {
+        if nis <= self.bound(dof) {
             self.failed = 0;
             self.failed_nis_per_dof = 0.0;
             return;

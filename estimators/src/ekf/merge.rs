@@ -30,9 +30,18 @@ const MERGE_ANGLE: f64 = 0.25;
 
 impl<P: RobotPose> Ekf<P> {
     /// Merges feature `id` with every confirmed feature that is the same one (see the module
-    /// documentation). `id` itself may be merged away.
+    /// documentation). `id` itself may be merged away. A feature the data identify (a
+    /// landmark id) is never merged.
     pub(super) fn merge_duplicates_of(&mut self, id: FeatureId) -> Result<()> {
-        if !self.params.merge_duplicates || self.map.get(id).is_err() || !self.is_confirmed(id) {
+        let known = self
+            .tracks
+            .get(&id)
+            .is_some_and(|t| t.landmark_id.is_some());
+        if !self.params.merge_duplicates
+            || known
+            || self.map.get(id).is_err()
+            || !self.is_confirmed(id)
+        {
             return Ok(());
         }
         for other in self.merge_candidates(id)? {

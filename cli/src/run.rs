@@ -257,6 +257,13 @@ mod tests {
     use slam_core::Pose2;
     use slam_core::nalgebra::Vector2;
 
+    /// A JSON output file of a run.
+    fn read_json(path: &Path) -> serde_json::Value {
+        let text =
+            std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        serde_json::from_str(&text).unwrap()
+    }
+
     /// The default world driven only along the corridor and into the pillar room, without
     /// the camera (quick in a debug build).
     fn short_world(dir: &Path) -> PathBuf {
@@ -295,10 +302,7 @@ mod tests {
         ] {
             assert!(dir.path().join("out").join(file).exists(), "{file} missing");
         }
-        let metrics: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
-        )
-        .unwrap();
+        let metrics = read_json(&dir.path().join("out/metrics.json"));
         let ate = metrics["ate_rmse_m"].as_f64().unwrap();
         let map_error = metrics["map_error_m"].as_f64().unwrap();
         assert!(ate < 0.1, "ATE {ate}");
@@ -331,10 +335,7 @@ mod tests {
                 );
                 let config = Config::from_toml(&text, "test").unwrap();
                 let summary = run_config(&config, true).unwrap();
-                let metrics: serde_json::Value = serde_json::from_str(
-                    &std::fs::read_to_string(out.join("metrics.json")).unwrap(),
-                )
-                .unwrap();
+                let metrics = read_json(&out.join("metrics.json"));
                 assert_eq!(metrics["estimator"], estimator);
                 // The NEES of the weighted particle cloud, said so, with the band of its mean.
                 assert_eq!(metrics["nees_covariance"], "particle cloud");
@@ -459,10 +460,7 @@ mod tests {
         assert_eq!(status, RunStatus::Complete);
         assert!(summary.contains("ATE n/a m"), "{summary}");
         assert!(!summary.contains("--align"), "{summary}");
-        let metrics: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
-        )
-        .unwrap();
+        let metrics = read_json(&dir.path().join("out/metrics.json"));
         assert!(metrics["ate_rmse_m"].is_null());
         let reason = metrics["unavailable"]["ate"].as_str().unwrap();
         assert!(
@@ -505,10 +503,7 @@ mod tests {
         config.output.dir = dir.path().join("out");
         config.output.plots = false;
         run_config(&config, true).unwrap();
-        let metrics: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
-        )
-        .unwrap();
+        let metrics = read_json(&dir.path().join("out/metrics.json"));
         let warnings = metrics["input"]["warnings"].as_array().unwrap();
         assert_eq!(warnings.len(), 1, "{warnings:?}");
         let warning = warnings[0].as_str().unwrap();
@@ -543,10 +538,7 @@ mod tests {
             summary.contains("readings skipped: 1 rb2d OBS: range not positive"),
             "{summary}"
         );
-        let metrics: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
-        )
-        .unwrap();
+        let metrics = read_json(&dir.path().join("out/metrics.json"));
         assert_eq!(
             metrics["input"]["skipped_readings"]["rb2d OBS: range not positive"],
             1
@@ -587,10 +579,7 @@ mod tests {
         config.output.dir = dir.path().join("out");
         config.output.plots = false;
         run_config(&config, true).unwrap();
-        let metrics: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
-        )
-        .unwrap();
+        let metrics = read_json(&dir.path().join("out/metrics.json"));
         let ate = metrics["ate_rmse_m"].as_f64().unwrap();
         let nees = metrics["nees"]["mean_per_dof"].as_f64().unwrap();
         assert!(ate < 0.034, "ATE {ate}");
@@ -612,10 +601,7 @@ mod tests {
             );
             let config = Config::from_toml(&text, "test").unwrap();
             run_config(&config, true).unwrap();
-            let metrics: serde_json::Value = serde_json::from_str(
-                &std::fs::read_to_string(dir.path().join("out/metrics.json")).unwrap(),
-            )
-            .unwrap();
+            let metrics = read_json(&dir.path().join("out/metrics.json"));
             let ate = metrics["ate_rmse_m"].as_f64().unwrap();
             let points = metrics["features"]["point"]["2"].as_u64().unwrap_or(0);
             assert!(ate < 0.05, "{association}: ATE {ate}");
@@ -726,10 +712,7 @@ mod tests {
             true,
         )
         .unwrap();
-        let metrics: serde_json::Value = serde_json::from_str(
-            &std::fs::read_to_string(out.join("em-polygon/metrics.json")).unwrap(),
-        )
-        .unwrap();
+        let metrics = read_json(&out.join("em-polygon/metrics.json"));
         let points = metrics["points"].as_u64().unwrap();
         let mean = metrics["mean_point_to_segment_m"].as_f64().unwrap();
         let ratio = metrics["compression_ratio"].as_f64().unwrap();

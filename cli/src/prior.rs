@@ -482,13 +482,13 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(
+        not(slam_data),
+        ignore = "needs the real datasets (DATASETS.md, SLAM_DATA_DIR)"
+    )]
     fn a_real_scan_of_the_intel_log() {
-        let log = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/datasets/radish-carmen-corrected/intel-corrected.log.gz");
-        if !log.exists() {
-            eprintln!("skipped: {} is absent", log.display());
-            return;
-        }
+        let log = std::path::Path::new(option_env!("SLAM_DATA").unwrap_or("absent"))
+            .join("radish-carmen-corrected/intel-corrected.log.gz");
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("intel.png");
         let mut a = args(&format!("carmen:{}", log.display()), out.clone());

@@ -702,9 +702,9 @@ mod tests {
     #[test]
     #[ignore]
     fn the_intel_lab_becomes_a_polygonal_map() {
-        let log = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/datasets/radish-carmen-corrected/intel-corrected.log.gz");
-        assert!(log.exists(), "{} is absent", log.display());
+        let log = Path::new(option_env!("SLAM_DATA").unwrap_or("the real datasets are absent"))
+            .join("radish-carmen-corrected/intel-corrected.log.gz");
+        assert!(log.exists(), "{} is absent (DATASETS.md)", log.display());
         let dir = temp_dir("intel");
         let out = dir.path().join("out");
         run_config(

@@ -18,7 +18,3 @@ pub mod endpoint_wall;
 
 pub use door::{Door, DoorObservation};
 pub use endpoint_wall::{EndpointWall, EndpointWallObservation, EndpointWalls};
-
-#[cfg(doctest)]
-#[doc = include_str!("../../README.md")]
-struct ReadmeDoctests;

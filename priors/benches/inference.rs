@@ -15,8 +15,8 @@ use slam_priors::{Library, Params, ScanInput, analyze, infer};
 use slam_sensors::Event;
 use slam_sensors::data::{CarmenOptions, stream_carmen};
 
-/// The Intel lab log, relative to this crate.
-const INTEL: &str = "../../shared/datasets/radish-carmen-corrected/intel-corrected.log.gz";
+/// The Intel lab log, under the real datasets folder (DATASETS.md).
+const INTEL: &str = "radish-carmen-corrected/intel-corrected.log.gz";
 
 fn scan(beams: usize) -> ScanInput {
     let spec = ScanSpec {
@@ -36,7 +36,10 @@ fn scan(beams: usize) -> ScanInput {
 
 /// Scans `wanted` (0-based, in stream order) of the Intel log; none when the log is absent.
 fn intel(wanted: &[usize]) -> Vec<(usize, ScanInput)> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(INTEL);
+    // `SLAM_DATA_DIR` (relative to the workspace root), by default `../shared/datasets`.
+    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let data = std::env::var_os("SLAM_DATA_DIR").unwrap_or_else(|| "../shared/datasets".into());
+    let path = workspace.join(data).join(INTEL);
     if !path.exists() {
         eprintln!(
             "{} not found: the Intel scans are not benched",

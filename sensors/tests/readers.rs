@@ -1,5 +1,5 @@
-//! The dataset readers on the real shared data (skipped with a message when
-//! `../shared/datasets` is absent) and on small malformed files.
+//! The dataset readers on the real shared data (ignored when the
+//! datasets are absent: DATASETS.md) and on small malformed files.
 
 use std::collections::{BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
@@ -10,18 +10,10 @@ use slam_sensors::data::{
 };
 use slam_sensors::{Dataset, Event, TruthKind};
 
-/// The shared datasets folder, or `None` (with a message) when it is absent.
-fn datasets() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/datasets");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!(
-            "SKIPPED: {} is absent; the real-data reader tests need the shared datasets",
-            dir.display()
-        );
-        None
-    }
+/// The real datasets folder (DATASETS.md, `SLAM_DATA_DIR`). Tests that read it carry
+/// `cfg_attr(not(slam_data), ignore)`: sensors/build.rs finds the folder.
+fn datasets() -> PathBuf {
+    PathBuf::from(option_env!("SLAM_DATA").unwrap_or("the real datasets are absent"))
 }
 
 /// A fresh folder for one test's files, removed when dropped.
@@ -57,8 +49,12 @@ fn assert_error<T: std::fmt::Debug>(result: slam_sensors::Result<T>, location: &
 }
 
 #[test]
+#[cfg_attr(
+    not(slam_data),
+    ignore = "needs the real datasets (DATASETS.md, SLAM_DATA_DIR)"
+)]
 fn victoria_park_counts() {
-    let Some(root) = datasets() else { return };
+    let root = datasets();
     let data =
         read_victoria_park(&root.join("victoria-park"), &VictoriaParkOptions::default()).unwrap();
     let counts = data.counts();
@@ -78,8 +74,12 @@ fn victoria_park_counts() {
 }
 
 #[test]
+#[cfg_attr(
+    not(slam_data),
+    ignore = "needs the real datasets (DATASETS.md, SLAM_DATA_DIR)"
+)]
 fn radish_carmen_counts() {
-    let Some(root) = datasets() else { return };
+    let root = datasets();
     let dir = root.join("radish-carmen-corrected");
     let expected = [
         ("intel-corrected.log.gz", 910, 180, 14541),
@@ -110,8 +110,12 @@ fn radish_carmen_counts() {
 }
 
 #[test]
+#[cfg_attr(
+    not(slam_data),
+    ignore = "needs the real datasets (DATASETS.md, SLAM_DATA_DIR)"
+)]
 fn intel_max_range_readings_are_invalid() {
-    let Some(root) = datasets() else { return };
+    let root = datasets();
     let path = root.join("radish-carmen-corrected/intel-corrected.log.gz");
     let data = read_carmen(&path, &CarmenOptions::default()).unwrap();
     let (mut total, mut valid) = (0, 0);
@@ -142,8 +146,12 @@ fn millis(text: &str) -> i64 {
 }
 
 #[test]
+#[cfg_attr(
+    not(slam_data),
+    ignore = "needs the real datasets (DATASETS.md, SLAM_DATA_DIR)"
+)]
 fn mrclam_robot1_counts() {
-    let Some(root) = datasets() else { return };
+    let root = datasets();
     let dir = root.join("utias-mrclam1");
     let data = read_mrclam(&dir, 1, &MrclamOptions::default()).unwrap();
     assert_eq!(data.landmarks.len(), 15);

@@ -62,18 +62,10 @@ fn stream_fingerprint(mut stream: EventStream) -> String {
     format!("{n} {h:016x}")
 }
 
-/// The shared datasets folder, or `None` (with a message) when it is absent.
-fn datasets() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/datasets");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!(
-            "SKIPPED: {} is absent; the real-data stream tests need the shared datasets",
-            dir.display()
-        );
-        None
-    }
+/// The real datasets folder (DATASETS.md, `SLAM_DATA_DIR`). Tests that read it carry
+/// `cfg_attr(not(slam_data), ignore)`: sensors/build.rs finds the folder.
+fn datasets() -> PathBuf {
+    PathBuf::from(option_env!("SLAM_DATA").unwrap_or("the real datasets are absent"))
 }
 
 /// Which reader, on what.
@@ -377,8 +369,12 @@ fn small_inputs_stream_the_events_of_the_in_memory_readers() {
 }
 
 #[test]
+#[cfg_attr(
+    not(slam_data),
+    ignore = "needs the real datasets (DATASETS.md, SLAM_DATA_DIR)"
+)]
 fn real_data_streams_the_events_of_the_in_memory_readers() {
-    let Some(root) = datasets() else { return };
+    let root = datasets();
     let carmen = root.join("radish-carmen-corrected");
     let cases = [
         ("intel-corrected.log.gz", "16360 525e0aad65cd5ca7"),
@@ -498,8 +494,15 @@ fn laser_odometry_streams_the_events_of_the_in_memory_version() {
             refused: 0,
         },
     );
-    let Some(root) = datasets() else { return };
-    let intel = root.join("radish-carmen-corrected/intel-corrected.log.gz");
+}
+
+#[test]
+#[cfg_attr(
+    not(slam_data),
+    ignore = "needs the real datasets (DATASETS.md, SLAM_DATA_DIR)"
+)]
+fn laser_odometry_streams_the_events_of_the_in_memory_version_on_the_intel_log() {
+    let intel = datasets().join("radish-carmen-corrected/intel-corrected.log.gz");
     check_laser_odometry(
         || stream_carmen(&intel, &CarmenOptions::default()).unwrap(),
         2000,
@@ -603,8 +606,8 @@ fn odometry_from_poses_streams_the_events_of_the_cli_version() {
             paths.push(path);
         }
     }
-    if let Some(root) = datasets() {
-        paths.push(root.join("radish-carmen-corrected/fhw-corrected.log.gz"));
+    if cfg!(slam_data) {
+        paths.push(datasets().join("radish-carmen-corrected/fhw-corrected.log.gz"));
     }
     let tight = PoseOdometryParams {
         translation_per_metre: 0.1,

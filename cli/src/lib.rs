@@ -10,6 +10,7 @@
 
 #![warn(missing_docs)]
 
+mod bench;
 mod camera;
 mod consistency;
 pub mod error;
@@ -62,6 +63,9 @@ enum Command {
     /// Run a structure prior (priorlets) on one scan and draw the corrected readings, the
     /// region and surface boundaries and the outliers.
     Prior(prior::PriorArgs),
+    /// Run the configured estimator several times without outputs and print the time per
+    /// step, the CPU time, the peak resident memory and the state size.
+    Bench(bench::BenchArgs),
 }
 
 /// Runs the command line `args` (the first is the program name) and returns what it
@@ -85,6 +89,7 @@ where
         Command::Simulate(args) => simulate::run(args).map(|()| String::new()),
         Command::Consistency(args) => consistency::run(args).map(|()| String::new()),
         Command::Eval(args) => eval::run(args).map(|()| String::new()),
+        Command::Bench(args) => bench::run_bench(args),
         Command::Prior(args) => prior::run(args).map(|()| String::new()),
     }
 }
@@ -126,6 +131,7 @@ pub fn main_with(args: impl IntoIterator<Item = OsString>) -> ExitCode {
         Command::Consistency(args) => consistency::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Prior(args) => prior::run(args),
+        Command::Bench(args) => bench::run_bench(args).map(|text| println!("{text}")),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,7 +2,6 @@
 //! `map.json`, `estimates.csv`, `metrics.json`, and a folder per post-processing stage.
 
 use std::collections::BTreeMap;
-use std::fmt::Write as _;
 use std::path::Path;
 
 use serde::Serialize;
@@ -10,7 +9,7 @@ use slam_core::nalgebra::DMatrix;
 use slam_core::{CoordBlock, Estimator, Feature, FeatureMap, Pose2, RowOwner};
 use slam_runtime::RunOutput;
 use slam_runtime::eval::{confirmed, pose_nees, stamped};
-use slam_sensors::data::{write_atomically, write_tum};
+use slam_sensors::data::{write_atomically, write_atomically_with, write_tum};
 
 use crate::error::{CliError, Result};
 
@@ -160,45 +159,49 @@ fn map_file(map: &FeatureMap, context: &MapContext<'_>) -> Result<String> {
     })
 }
 
-/// `estimates.csv`: every estimated pose with its covariance, and the true pose and the
-/// NEES where the data have true poses.
-pub fn estimates_csv(output: &RunOutput) -> String {
+/// Writes `estimates.csv` into `dir`, streamed: every pose with its covariance, and where the
+/// data give true poses, the true pose and the pose NEES.
+pub fn write_estimates_csv(dir: &Path, output: &RunOutput) -> Result<()> {
     let record = &output.record;
     let truth = record.true_poses();
     let nees: BTreeMap<u64, f64> = pose_nees(&record.estimates, &truth)
         .into_iter()
         .map(|(t, n)| (t.to_bits(), n))
         .collect();
-    let mut text = String::from(
-        "time,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta,\
-         true_x,true_y,true_theta,nees\n",
-    );
-    for r in &record.estimates {
-        let c = &r.covariance;
-        // Writing to a String cannot fail.
-        let _ = write!(
-            text,
-            "{},{},{},{},{:e},{:e},{:e},{:e},{:e},{:e}",
-            r.time,
-            r.pose.x,
-            r.pose.y,
-            r.pose.theta,
-            c[(0, 0)],
-            c[(0, 1)],
-            c[(0, 2)],
-            c[(1, 1)],
-            c[(1, 2)],
-            c[(2, 2)]
-        );
-        match truth.get(&r.time.to_bits()) {
-            Some(t) => {
-                let n = nees
-                    .get(&r.time.to_bits())
-                    .map_or(String::new(), |n| n.to_string());
-                let _ = writeln!(text, ",{},{},{},{n}", t.x, t.y, t.theta);
+    write_atomically_with(&dir.join("estimates.csv"), |out| {
+        writeln!(
+            out,
+            "time,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta,\
+             true_x,true_y,true_theta,nees"
+        )?;
+        for r in &record.estimates {
+            let c = &r.covariance;
+            write!(
+                out,
+                "{},{},{},{},{:e},{:e},{:e},{:e},{:e},{:e}",
+                r.time,
+                r.pose.x,
+                r.pose.y,
+                r.pose.theta,
+                c[(0, 0)],
+                c[(0, 1)],
+                c[(0, 2)],
+                c[(1, 1)],
+                c[(1, 2)],
+                c[(2, 2)]
+            )?;
+            match truth.get(&r.time.to_bits()) {
+                Some(t) => {
+                    write!(out, ",{},{},{},", t.x, t.y, t.theta)?;
+                    match nees.get(&r.time.to_bits()) {
+                        Some(n) => writeln!(out, "{n}")?,
+                        None => writeln!(out)?,
+                    }
+                }
+                None => writeln!(out, ",,,,")?,
             }
-            None => text.push_str(",,,,\n"),
         }
-    }
-    text
+        Ok(())
+    })?;
+    Ok(())
 }

@@ -9,7 +9,8 @@ use slam_runtime::{Config, PostProcessOutput, RunMetrics, RunOutput};
 use crate::error::Result;
 use crate::figures::{run_figure, stage_figure};
 use crate::outputs::{
-    create_dir, estimates_csv, map_json, plain_map_json, write_json, write_text, write_trajectory,
+    create_dir, map_json, plain_map_json, write_estimates_csv, write_json, write_text,
+    write_trajectory,
 };
 use crate::outset::OutputSet;
 use crate::progress::Progress;
@@ -161,7 +162,7 @@ fn write_outputs(
 ) -> Result<()> {
     write_trajectory(dir, output)?;
     write_text(dir, "map.json", &map_json(output.estimator.as_ref())?)?;
-    write_text(dir, "estimates.csv", &estimates_csv(output))?;
+    write_estimates_csv(dir, output)?;
     write_json(dir, "metrics.json", metrics)?;
     if config.output.plots {
         let figure = run_figure(output);

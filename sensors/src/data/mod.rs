@@ -40,7 +40,7 @@ pub use carmen::{CarmenOptions, read_carmen, stream_carmen};
 pub use mrclam::{MrclamOptions, read_mrclam, stream_mrclam};
 pub use pose_odometry::{PoseOdometryParams, odometry_from_poses};
 pub use rb2d::{read_rb2d, stream_rb2d};
-pub use tum::{StampedPose, read_tum, write_atomically, write_tum};
+pub use tum::{StampedPose, read_tum, write_atomically, write_atomically_with, write_tum};
 pub use victoria_park::{VictoriaParkOptions, read_victoria_park, stream_victoria_park};
 
 use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};

@@ -4,7 +4,7 @@
 //! The quaternion is the rotation `world_from_body` (Hamilton convention, `qw` last), as the
 //! TUM tools and `evo` read it.
 
-use std::fmt::Write as _;
+use std::io::Write;
 use std::path::Path;
 
 use slam_core::Pose3;
@@ -65,35 +65,58 @@ pub fn read_tum(path: &Path) -> Result<Vec<StampedPose>> {
 
 /// The TUM text of a trajectory, with a header comment.
 pub fn tum_text(poses: &[StampedPose]) -> String {
-    let mut text = String::from("# timestamp tx ty tz qx qy qz qw\n");
+    let mut bytes = Vec::new();
+    // Writing to memory cannot fail.
+    let _ = write_tum_lines(&mut bytes, poses);
+    String::from_utf8(bytes).unwrap_or_default()
+}
+
+/// Writes the TUM text of a trajectory (with its header comment) to `out`, line by line.
+fn write_tum_lines(out: &mut dyn Write, poses: &[StampedPose]) -> std::io::Result<()> {
+    writeln!(out, "# timestamp tx ty tz qx qy qz qw")?;
     for p in poses {
         let q = UnitQuaternion::from_matrix(&p.pose.rotation());
         let t = p.pose.translation;
-        // Writing to a String cannot fail.
-        let _ = writeln!(
-            text,
+        writeln!(
+            out,
             "{:.6} {:.6} {:.6} {:.6} {:.9} {:.9} {:.9} {:.9}",
             p.time, t.x, t.y, t.z, q.i, q.j, q.k, q.w
-        );
+        )?;
     }
-    text
+    Ok(())
 }
 
-/// Writes a TUM trajectory completely or not at all ([`write_atomically`]).
+/// Writes a TUM trajectory completely or not at all ([`write_atomically_with`]), streamed:
+/// no copy of the text in memory.
 pub fn write_tum(path: &Path, poses: &[StampedPose]) -> Result<()> {
-    write_atomically(path, tum_text(poses).as_bytes())
+    write_atomically_with(path, |out| write_tum_lines(out, poses))
 }
 
 /// Writes `bytes` to `path` completely or not at all: to a temporary file beside it, then
 /// renamed into place. On error the temporary file is removed and `path` is untouched.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomically_with(path, |out| out.write_all(bytes))
+}
+
+/// Writes to `path` completely or not at all, with `fill` writing the contents to a buffered
+/// temporary file beside it, which is then renamed into place (a long output is streamed, not
+/// built in memory first). On error the temporary file is removed and `path` is untouched.
+pub fn write_atomically_with(
+    path: &Path,
+    fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> Result<()> {
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let temporary = path.with_file_name(format!(".{name}.partial"));
-    let written =
-        std::fs::write(&temporary, bytes).and_then(|()| std::fs::rename(&temporary, path));
+    let written = std::fs::File::create(&temporary)
+        .and_then(|file| {
+            let mut out = std::io::BufWriter::new(file);
+            fill(&mut out)?;
+            out.flush()
+        })
+        .and_then(|()| std::fs::rename(&temporary, path));
     written.map_err(|e| {
         let _ = std::fs::remove_file(&temporary);
         SensorError::io(path, e)

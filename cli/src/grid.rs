@@ -2,10 +2,12 @@
 //! into a log-odds grid from the pose estimated at the end of its time step, written as
 //! `map.pgm` + `map.yaml` in the format of ROS `map_server` / `map_saver`.
 //!
+//! The pose is the estimate of `trajectory.tum` (for a particle filter, the weighted mean).
 //! Each beam lowers the log-odds of the cells it crosses (free) and raises the log-odds of the
 //! cell of its return (occupied); a reading at or beyond the laser's maximum range marks the
 //! cells up to the maximum range free and nothing occupied; a reading at or below the minimum
-//! range, or not finite, is left out. The grid grows with the area the beams reach, never with
+//! range, or not finite, is left out. Beams are cut at `grid_max_range` (default 30 m): a
+//! longer one marks the cells up to there free and nothing occupied. The grid grows with the area the beams reach, never with
 //! the number of scans: the observer keeps only the scans of the open time step.
 
 use std::fmt::Write as _;
@@ -44,6 +46,8 @@ pub struct OccupancyGrid {
     log_odds: Vec<f32>,
     /// Scans cast.
     scans: usize,
+    /// Longest beam cast, m.
+    max_range: f64,
 }
 
 /// What a cell is, by map_server's trinary reading of its probability.
@@ -58,10 +62,12 @@ pub enum CellState {
 }
 
 impl OccupancyGrid {
-    /// An empty grid of cells `resolution` m wide (checked by the config: positive).
-    pub fn new(resolution: f64) -> Self {
+    /// An empty grid of cells `resolution` m wide, casting beams `max_range` m long at most
+    /// (both checked by the config: positive).
+    pub fn new(resolution: f64, max_range: f64) -> Self {
         OccupancyGrid {
             resolution,
+            max_range,
             min_ix: 0,
             min_iy: 0,
             width: 0,
@@ -183,8 +189,12 @@ impl OccupancyGrid {
             if !range.is_finite() || range <= scan.min_range {
                 continue;
             }
-            let hit = range < scan.max_range;
-            let length = if hit { range } else { scan.max_range };
+            let hit = range < scan.max_range && range <= self.max_range;
+            let length = if hit {
+                range
+            } else {
+                scan.max_range.min(self.max_range)
+            };
             if !length.is_finite() {
                 continue;
             }
@@ -327,10 +337,11 @@ pub struct GridObserver {
 }
 
 impl GridObserver {
-    /// An observer building a grid of cells `resolution` m wide.
-    pub fn new(resolution: f64) -> Self {
+    /// An observer building a grid of cells `resolution` m wide from beams `max_range` m
+    /// long at most.
+    pub fn new(resolution: f64, max_range: f64) -> Self {
         GridObserver {
-            grid: OccupancyGrid::new(resolution),
+            grid: OccupancyGrid::new(resolution, max_range),
             pending: Vec::new(),
         }
     }
@@ -376,7 +387,7 @@ mod tests {
 
     #[test]
     fn one_ray_frees_the_cells_it_crosses_and_occupies_its_return() {
-        let mut grid = OccupancyGrid::new(0.1);
+        let mut grid = OccupancyGrid::new(0.1, 30.0);
         // One beam straight ahead along +x, returning at 2.05 m.
         grid.insert_scan(
             &Pose2::new(0.05, 0.05, 0.0),
@@ -419,14 +430,14 @@ mod tests {
 
     #[test]
     fn max_range_readings_free_only_and_short_ones_are_left_out() {
-        let mut grid = OccupancyGrid::new(0.1);
+        let mut grid = OccupancyGrid::new(0.1, 30.0);
         let pose = Pose2::new(0.05, 0.05, std::f64::consts::FRAC_PI_2);
         grid.insert_scan(&pose, &Pose3::identity(), &scan(vec![10.0]))
             .unwrap();
         // The beam points along +y; no cell is occupied, the last one is free.
         assert_eq!(grid.log_odds_at(&Vector2::new(0.05, 9.95)), LOG_ODDS_MISS);
         assert!(grid.log_odds.iter().all(|v| *v <= 0.0));
-        let mut empty = OccupancyGrid::new(0.1);
+        let mut empty = OccupancyGrid::new(0.1, 30.0);
         empty
             .insert_scan(&pose, &Pose3::identity(), &scan(vec![0.05, f64::NAN]))
             .unwrap();
@@ -435,8 +446,24 @@ mod tests {
     }
 
     #[test]
+    fn beams_are_cut_at_grid_max_range() {
+        let mut grid = OccupancyGrid::new(0.1, 1.0);
+        grid.insert_scan(
+            &Pose2::new(0.05, 0.05, 0.0),
+            &Pose3::identity(),
+            &scan(vec![2.0]),
+        )
+        .unwrap();
+        // Free up to 1 m, nothing beyond, no return.
+        assert_eq!(grid.log_odds_at(&Vector2::new(0.95, 0.05)), LOG_ODDS_MISS);
+        assert_eq!(grid.log_odds_at(&Vector2::new(1.05, 0.05)), LOG_ODDS_MISS);
+        assert_eq!(grid.log_odds_at(&Vector2::new(1.15, 0.05)), 0.0);
+        assert_eq!(grid.log_odds_at(&Vector2::new(2.05, 0.05)), 0.0);
+    }
+
+    #[test]
     fn the_laser_mounting_and_the_robot_pose_place_the_beam() {
-        let mut grid = OccupancyGrid::new(0.05);
+        let mut grid = OccupancyGrid::new(0.05, 30.0);
         // A laser 0.5 m ahead of the robot, the robot at (1, 2) facing +y: a return at 1 m
         // lands at (1, 3.5).
         let mount = Pose3::new(Vector3::new(0.5, 0.0, 0.3), 0.0, 0.0, 0.0);
@@ -454,7 +481,7 @@ mod tests {
 
     #[test]
     fn the_pgm_and_yaml_follow_map_saver() {
-        let mut grid = OccupancyGrid::new(0.1);
+        let mut grid = OccupancyGrid::new(0.1, 30.0);
         // One beam along +x from cell (0, 0), returning in cell (20, 0).
         grid.insert_scan(
             &Pose2::new(0.05, 0.05, 0.0),
@@ -497,7 +524,7 @@ mod tests {
 
     #[test]
     fn a_grid_too_large_is_an_error_naming_the_key() {
-        let mut grid = OccupancyGrid::new(1e-4);
+        let mut grid = OccupancyGrid::new(1e-4, 30.0);
         let diagonal = std::f64::consts::FRAC_PI_4;
         let far = LaserScan::new(diagonal, diagonal, vec![5.0], 0.1, 10.0).unwrap();
         let error = grid

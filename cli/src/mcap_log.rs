@@ -11,7 +11,8 @@
 //! | `/map` | `foxglove.SceneUpdate`: confirmed walls and lines as a line list, points and poles as spheres, their 95 % position ellipses as line strips | every `mcap_map_interval_s` of data time, and at the end |
 //!
 //! Message times are the data's times in nanoseconds (a negative time is written as 0); a
-//! scan reading that is not finite is written as 0 (JSON has no infinity). The
+//! scan reading that is not finite is written as 0 (JSON has no infinity); positions and
+//! ranges are rounded to 0.1 mm. The
 //! writer keeps one chunk (about 1 MiB) in memory; the chunks are not compressed (no C
 //! compression library is linked).
 
@@ -32,7 +33,12 @@ use crate::outputs::anchor_covariance;
 /// The scale of a 2-D covariance ellipse holding 95 % of the probability: `sqrt(chi2_2(0.95))`.
 const ELLIPSE_SCALE: f64 = 2.447_746_830_680_816;
 /// Points of an ellipse's line strip (the first repeated at the end).
-const ELLIPSE_POINTS: usize = 33;
+const ELLIPSE_POINTS: usize = 25;
+
+/// `x` rounded to 0.1 mm (or 1e-4 rad): what a viewer shows, at a third of the digits.
+fn fine(x: f64) -> f64 {
+    (x * 1e4).round() / 1e4
+}
 
 /// The topics of `run.mcap` with their schema names.
 pub const TOPICS: [(&str, &str); 5] = [
@@ -92,7 +98,7 @@ fn quaternion(yaw: f64, pitch: f64, roll: f64) -> Value {
 }
 
 fn point(p: Vector3<f64>) -> Value {
-    json!({"x": p.x, "y": p.y, "z": p.z})
+    json!({"x": fine(p.x), "y": fine(p.y), "z": fine(p.z)})
 }
 
 fn pose_json(translation: Vector3<f64>, yaw: f64, pitch: f64, roll: f64) -> Value {
@@ -242,7 +248,7 @@ impl McapLog {
         let ranges: Vec<f64> = scan
             .ranges
             .iter()
-            .map(|r| if r.is_finite() { *r } else { 0.0 })
+            .map(|r| if r.is_finite() { fine(*r) } else { 0.0 })
             .collect();
         let message = json!({
             "timestamp": stamp, "frame_id": "base_link",
@@ -419,7 +425,8 @@ mod tests {
         for p in &points {
             let x = (p["x"].as_f64().unwrap() - 1.0) / 1.0;
             let y = (p["y"].as_f64().unwrap() - 2.0) / 0.5;
-            assert!(((x * x + y * y).sqrt() - ELLIPSE_SCALE).abs() < 1e-9);
+            // Positions are rounded to 0.1 mm.
+            assert!(((x * x + y * y).sqrt() - ELLIPSE_SCALE).abs() < 5e-4);
         }
     }
 

@@ -228,7 +228,7 @@ impl Streams {
         Ok(Streams {
             grid: output
                 .grid
-                .then(|| GridObserver::new(output.grid_resolution)),
+                .then(|| GridObserver::new(output.grid_resolution, output.grid_max_range)),
             g2o: output.g2o.then(G2oObserver::default),
             mcap: match output.mcap {
                 true => Some(McapLog::create(

@@ -22,6 +22,7 @@
 //! plots = true
 //! grid = false            # map.pgm + map.yaml, the occupancy grid (runs with a laser)
 //! grid_resolution = 0.05  # its cell side, m
+//! grid_max_range = 30.0   # beams are cast this far at most (free only beyond), m
 //! g2o = false             # graph.g2o, the pose graph with landmarks and walls
 //! mcap = false            # run.mcap, the run for Foxglove (Foxglove schemas, JSON)
 //! mcap_map_interval_s = 1.0   # data time between two maps in run.mcap, s
@@ -51,6 +52,10 @@ pub struct OutputConfig {
     pub grid: bool,
     /// Cell side of the occupancy grid, m.
     pub grid_resolution: f64,
+    /// Longest beam cast into the grid, m: a longer reading, or a reading at the laser's
+    /// maximum range, marks the cells up to this distance free and nothing occupied (so that
+    /// beams through windows and doors do not grow the grid by the laser's full range).
+    pub grid_max_range: f64,
     /// Write the pose graph with the landmarks and walls, `graph.g2o`.
     pub g2o: bool,
     /// Write `run.mcap`, the run for Foxglove (poses, scans, map, covariance ellipses).
@@ -66,6 +71,7 @@ impl Default for OutputConfig {
             plots: true,
             grid: false,
             grid_resolution: 0.05,
+            grid_max_range: 30.0,
             g2o: false,
             mcap: false,
             mcap_map_interval_s: 1.0,
@@ -74,7 +80,8 @@ impl Default for OutputConfig {
 }
 
 impl OutputConfig {
-    /// Checks the values: a positive grid resolution, a map interval of zero or more.
+    /// Checks the values: a positive grid resolution and range, a map interval of zero or
+    /// more.
     pub fn validate(&self) -> Result<()> {
         if !(self.grid_resolution.is_finite() && self.grid_resolution > 0.0) {
             return Err(RuntimeError::setting(
@@ -82,6 +89,15 @@ impl OutputConfig {
                 format!(
                     "grid_resolution = {}: give a positive cell side in metres",
                     self.grid_resolution
+                ),
+            ));
+        }
+        if !(self.grid_max_range.is_finite() && self.grid_max_range > 0.0) {
+            return Err(RuntimeError::setting(
+                "output",
+                format!(
+                    "grid_max_range = {}: give a positive distance in metres",
+                    self.grid_max_range
                 ),
             ));
         }

@@ -254,7 +254,7 @@ def test_the_mcap_log_reads_with_the_mcap_library(room_run):
         for schema in summary.schemas.values():
             assert schema.encoding == "jsonschema"
             assert json.loads(schema.data)["title"] == schema.name
-        counts, last_time, pose_times, walls_seen = {}, 0, [], 0
+        counts, last_time, pose_times, scene = {}, 0, [], {}
         for schema, channel, message in reader.iter_messages(log_time_order=False):
             assert channel.message_encoding == "json"
             body = json.loads(message.data)
@@ -272,11 +272,19 @@ def test_the_mcap_log_reads_with_the_mcap_library(room_run):
                 assert len(body["ranges"]) == 361
                 assert body["end_angle"] - body["start_angle"] == pytest.approx(math.pi)
             if channel.topic == "/map":
-                lines = [l for e in body["entities"] if e["id"] == "walls" for l in e["lines"]]
-                walls_seen = max(walls_seen, sum(len(l["points"]) // 2 for l in lines))
+                # Replayed as Foxglove does: an entity replaces the one of its id.
+                for deletion in body["deletions"]:
+                    scene.pop(deletion["id"], None)
+                for entity in body["entities"]:
+                    assert entity["frame_id"] == "map"
+                    scene[entity["id"]] = entity
         assert counts["/scan"] == len(POSES)
         assert counts["/pose"] == counts["/tf"] == counts["/pose_covariance"] == steps
         assert counts["/map"] >= 1
-        assert walls_seen >= 4
+        # At the end the scene holds the walls of map.json, each a segment.
+        walls = [f for f in json.loads((room_run / "map.json").read_text())["features"] if f["type"] == "wall" and f["confirmed"]]
+        drawn = [e for e in scene.values() if e["lines"] and not e["spheres"]]
+        assert len(drawn) == len(walls) >= 4
+        assert all(len(e["lines"][0]["points"]) == 2 for e in drawn)
         assert pose_times == pytest.approx(trajectory_times, abs=1e-6)
         assert summary.statistics.message_count == sum(counts.values())

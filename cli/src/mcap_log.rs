@@ -8,7 +8,7 @@
 //! | `/pose` | `foxglove.PoseInFrame` (frame `map`) | each time step's end |
 //! | `/pose_covariance` | `foxglove.SceneUpdate`: the 95 % ellipse of x, y as a line strip | each time step's end |
 //! | `/scan` | `foxglove.LaserScan` (frame `base_link`, the laser's mounting as its pose) | each scan |
-//! | `/map` | `foxglove.SceneUpdate`: confirmed walls and lines as a line list, points and poles as spheres, their 95 % position ellipses as line strips | every `mcap_map_interval_s` of data time, and at the end |
+//! | `/map` | `foxglove.SceneUpdate`: one entity per confirmed feature (`feature-<id>`): walls and lines as line lists, points and poles as spheres with their 95 % position ellipse as a line strip | every `mcap_map_interval_s` of data time and at the end, holding the features drawn 5 mm or more away from where they were last sent, and deletions of those gone |
 //!
 //! Message times are the data's times in nanoseconds (a negative time is written as 0); a
 //! scan reading that is not finite is written as 0 (JSON has no infinity); positions and
@@ -32,6 +32,9 @@ use crate::outputs::anchor_covariance;
 
 /// The scale of a 2-D covariance ellipse holding 95 % of the probability: `sqrt(chi2_2(0.95))`.
 const ELLIPSE_SCALE: f64 = 2.447_746_830_680_816;
+/// How far a feature's drawing (an end, a centre, an ellipse's half-axis) moves before
+/// `/map` sends it again, m.
+const MAP_CHANGE_M: f64 = 0.005;
 /// Points of an ellipse's line strip (the first repeated at the end).
 const ELLIPSE_POINTS: usize = 25;
 
@@ -165,6 +168,8 @@ pub struct McapLog {
     map_interval_s: f64,
     last_map: Option<f64>,
     last_time: Option<f64>,
+    /// What each feature's entity was drawn from when last sent, by feature id.
+    shown: BTreeMap<usize, Vec<f64>>,
 }
 
 impl std::fmt::Debug for McapLog {
@@ -216,6 +221,7 @@ impl McapLog {
             map_interval_s,
             last_map: None,
             last_time: None,
+            shown: BTreeMap::new(),
         })
     }
 
@@ -292,62 +298,105 @@ impl McapLog {
         self.write("/pose_covariance", nanos, &update)
     }
 
-    /// The confirmed map at `time`: one update replacing the previous entities.
+    /// The confirmed map at `time`: one entity per feature (`feature-<id>`), sent again only
+    /// when its drawing moved by more than [`MAP_CHANGE_M`], and deleted when the feature
+    /// left the map; the first map is always written.
     fn map(&mut self, time: f64, estimator: &dyn Estimator<Pose2>) -> slam_runtime::Result<()> {
         let (stamp, nanos) = stamp(time);
-        let mut segments = Vec::new();
-        let mut spheres = Vec::new();
-        let mut ellipses = Vec::new();
+        let mut entities = Vec::new();
+        let mut present = std::collections::BTreeSet::new();
         for (id, feature) in estimator.map().iter() {
             if !confirmed(estimator, id) {
                 continue;
             }
-            let (centre, size) = match feature.shape() {
+            let (lines, spheres, signature) = match feature.shape() {
                 Some(Shape::Wall { start, end }) => {
-                    segments.push(point(Vector3::new(start.x, start.y, 0.0)));
-                    segments.push(point(Vector3::new(end.x, end.y, 0.0)));
-                    continue;
+                    let ends = vec![
+                        point(Vector3::new(start.x, start.y, 0.0)),
+                        point(Vector3::new(end.x, end.y, 0.0)),
+                    ];
+                    let signature = vec![start.x, start.y, end.x, end.y];
+                    (
+                        vec![line(2, ends, 0.05, color(0.1, 0.1, 0.1))],
+                        Vec::new(),
+                        signature,
+                    )
                 }
                 Some(Shape::Line { start, end }) => {
-                    segments.push(point(start));
-                    segments.push(point(end));
-                    continue;
+                    let signature = vec![start.x, start.y, start.z, end.x, end.y, end.z];
+                    let ends = vec![point(start), point(end)];
+                    (
+                        vec![line(2, ends, 0.05, color(0.4, 0.4, 0.4))],
+                        Vec::new(),
+                        signature,
+                    )
                 }
-                Some(Shape::Pole { centre, radius }) => {
-                    (Vector3::new(centre.x, centre.y, 0.0), 2.0 * radius)
+                Some(
+                    shape @ (Shape::Pole { .. } | Shape::Point { .. } | Shape::PlanarPoint { .. }),
+                ) => {
+                    let (centre, size) = match shape {
+                        Shape::Pole { centre, radius } => {
+                            (Vector3::new(centre.x, centre.y, 0.0), 2.0 * radius)
+                        }
+                        Shape::Point { position } => (position, 0.15),
+                        Shape::PlanarPoint { position } => {
+                            (Vector3::new(position.x, position.y, 0.0), 0.15)
+                        }
+                        _ => continue,
+                    };
+                    let sphere = json!({
+                        "pose": pose_json(centre, 0.0, 0.0, 0.0),
+                        "size": {"x": size, "y": size, "z": size},
+                        "color": color(0.1, 0.5, 1.0)
+                    });
+                    let mut signature = vec![centre.x, centre.y, centre.z, size];
+                    let covariance = anchor_covariance(estimator, id);
+                    let lines = covariance
+                        .and_then(|c| ellipse(centre.xy(), &c, centre.z))
+                        .map(|points| vec![line(0, points, 0.02, color(0.1, 0.5, 1.0))])
+                        .unwrap_or_default();
+                    if let Some(c) = covariance {
+                        // The ellipse's half-axes change as the square roots of these.
+                        signature.extend(c.iter().map(|v| v.abs().sqrt() * ELLIPSE_SCALE));
+                    }
+                    (lines, vec![sphere], signature)
                 }
-                Some(Shape::Point { position }) => (position, 0.15),
-                Some(Shape::PlanarPoint { position }) => {
-                    (Vector3::new(position.x, position.y, 0.0), 0.15)
-                }
-                None => continue,
+                _ => continue,
             };
-            spheres.push(json!({
-                "pose": pose_json(centre, 0.0, 0.0, 0.0),
-                "size": {"x": size, "y": size, "z": size},
-                "color": color(0.1, 0.5, 1.0)
-            }));
-            if let Some(points) =
-                anchor_covariance(estimator, id).and_then(|c| ellipse(centre.xy(), &c, centre.z))
-            {
-                ellipses.push(line(0, points, 0.02, color(0.1, 0.5, 1.0)));
+            present.insert(id.0);
+            let moved = self.shown.get(&id.0).is_none_or(|shown| {
+                shown.len() != signature.len()
+                    || shown
+                        .iter()
+                        .zip(&signature)
+                        .any(|(a, b)| (a - b).abs() > MAP_CHANGE_M)
+            });
+            if moved {
+                let name = format!("feature-{}", id.0);
+                entities.push(entity(&stamp, &name, lines, spheres));
+                self.shown.insert(id.0, signature);
             }
         }
-        let walls = if segments.is_empty() {
-            Vec::new()
-        } else {
-            vec![line(2, segments, 0.05, color(0.1, 0.1, 0.1))]
-        };
-        let update = json!({
-            "deletions": [{"timestamp": stamp, "type": 1, "id": ""}],
-            "entities": [
-                entity(&stamp, "walls", walls, Vec::new()),
-                entity(&stamp, "landmarks", Vec::new(), spheres),
-                entity(&stamp, "landmark_covariance", ellipses, Vec::new()),
-            ]
-        });
+        let gone: Vec<usize> = self
+            .shown
+            .keys()
+            .filter(|id| !present.contains(id))
+            .copied()
+            .collect();
+        let deletions: Vec<Value> = gone
+            .iter()
+            .map(|id| json!({"timestamp": stamp, "type": 0, "id": format!("feature-{id}")}))
+            .collect();
+        for id in gone {
+            self.shown.remove(&id);
+        }
+        let first = self.last_map.is_none();
         self.last_map = Some(time);
-        self.write("/map", nanos, &update)
+        if first || !entities.is_empty() || !deletions.is_empty() {
+            let update = json!({"deletions": deletions, "entities": entities});
+            self.write("/map", nanos, &update)?;
+        }
+        Ok(())
     }
 
     /// Logs the final map (unless logged at the last step already) and completes the file.
@@ -460,9 +509,9 @@ mod tests {
         assert!(bytes.starts_with(mcap::MAGIC) && bytes.ends_with(mcap::MAGIC));
         let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
         let stats = summary.stats.unwrap();
-        // 3 scans, 3 x (tf, pose, covariance), maps at 0 and 1 s and the final one at 1 s
-        // already logged: 2 maps.
-        assert_eq!(stats.message_count, 3 + 9 + 2);
+        // 3 scans, 3 x (tf, pose, covariance), and the first map (empty: dead reckoning);
+        // the map due at 1 s has not changed and is not sent.
+        assert_eq!(stats.message_count, 3 + 9 + 1);
         let topics: Vec<String> = summary.channels.values().map(|c| c.topic.clone()).collect();
         assert_eq!(topics.len(), 5, "{topics:?}");
         let mut scans = 0;

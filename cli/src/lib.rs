@@ -17,6 +17,9 @@ pub mod error;
 mod eval;
 mod extract;
 mod figures;
+mod g2o;
+mod grid;
+mod mcap_log;
 mod outputs;
 mod outset;
 mod plot;
@@ -47,7 +50,8 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Run an estimator (default: the EKF on the built-in simulated world) and write
-    /// trajectory.tum, map.json, estimates.csv, metrics.json, map.svg and map.png.
+    /// trajectory.tum, map.json, estimates.csv, metrics.json, map.svg and map.png (and, when
+    /// asked, map.pgm + map.yaml, graph.g2o, run.mcap).
     Run(run::RunArgs),
     /// Run the scan front-ends on one scan and draw what they find.
     Extract(extract::ExtractArgs),

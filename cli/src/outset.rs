@@ -23,7 +23,7 @@ use crate::error::{CliError, Result};
 
 /// The files and folders a run writes at the top of its set (stages add folders holding a
 /// `metrics.json`).
-const OUTPUT_FILES: [&str; 7] = [
+const OUTPUT_FILES: [&str; 11] = [
     "trajectory.tum",
     "map_path.tum",
     "map.json",
@@ -31,6 +31,10 @@ const OUTPUT_FILES: [&str; 7] = [
     "metrics.json",
     "map.svg",
     "map.png",
+    "map.pgm",
+    "map.yaml",
+    "graph.g2o",
+    "run.mcap",
 ];
 
 /// A set being written (see the module documentation); dropped before

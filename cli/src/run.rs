@@ -4,10 +4,14 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
-use slam_runtime::{Config, PostProcessOutput, RunMetrics, RunOutput};
+use slam_runtime::{Config, Observer, PostProcessOutput, RunMetrics, RunOutput};
+use slam_sensors::data::write_atomically;
 
-use crate::error::Result;
+use crate::error::{CliError, Result};
 use crate::figures::{run_figure, stage_figure};
+use crate::g2o::{G2oObserver, g2o_text};
+use crate::grid::GridObserver;
+use crate::mcap_log::McapLog;
 use crate::outputs::{
     create_dir, map_json, plain_map_json, write_estimates_csv, write_json, write_text,
     write_trajectory,
@@ -41,6 +45,17 @@ pub struct RunArgs {
     /// No progress bar and only the summary line.
     #[arg(long)]
     pub quiet: bool,
+    /// Write the occupancy grid, map.pgm + map.yaml (ROS map_server format); an error for
+    /// data without laser scans. Same as the config's `[output] grid = true`, which skips
+    /// such data with a note instead.
+    #[arg(long)]
+    pub grid: bool,
+    /// Write the pose graph with landmarks and walls, graph.g2o (`[output] g2o = true`).
+    #[arg(long)]
+    pub g2o: bool,
+    /// Write run.mcap, the run for Foxglove (`[output] mcap = true`).
+    #[arg(long)]
+    pub mcap: bool,
 }
 
 /// The configuration of `slam run` with its arguments applied.
@@ -58,6 +73,9 @@ pub fn config_of(args: &RunArgs) -> Result<Config> {
     if let Some(seed) = args.seed {
         config.data.seed = seed;
     }
+    config.output.grid |= args.grid;
+    config.output.g2o |= args.g2o;
+    config.output.mcap |= args.mcap;
     Ok(config)
 }
 
@@ -102,13 +120,19 @@ impl RunStatus {
 
 /// Runs `slam run`; returns the summary it prints.
 pub fn run(args: &RunArgs) -> Result<String> {
-    run_config(&config_of(args)?, args.quiet)
+    run_inner(
+        &config_of(args)?,
+        args.quiet,
+        &AtomicBool::new(false),
+        args.grid,
+    )
+    .map(|(summary, _)| summary)
 }
 
 /// Runs `slam run` until the end of the data or until `stop` is set; returns the summary and
 /// how the run ended.
 pub fn run_until(args: &RunArgs, stop: &AtomicBool) -> Result<(String, RunStatus)> {
-    run_config_until(&config_of(args)?, args.quiet, stop)
+    run_inner(&config_of(args)?, args.quiet, stop, args.grid)
 }
 
 /// Runs a configuration and writes its outputs; returns a summary (one line, and one per
@@ -125,18 +149,47 @@ pub fn run_config_until(
     quiet: bool,
     stop: &AtomicBool,
 ) -> Result<(String, RunStatus)> {
+    run_inner(config, quiet, stop, false)
+}
+
+/// [`run_config_until`]; `grid_required` (the `--grid` flag) makes data without laser scans
+/// an error rather than a note.
+fn run_inner(
+    config: &Config,
+    quiet: bool,
+    stop: &AtomicBool,
+    grid_required: bool,
+) -> Result<(String, RunStatus)> {
+    config.output.validate()?;
+    if grid_required
+        && let Some(kind) = ["rb2d:", "victoria-park:"]
+            .iter()
+            .find(|kind| config.data.spec.starts_with(**kind))
+    {
+        return Err(CliError::Usage(no_scans_error(kind.trim_end_matches(':'))));
+    }
     let set = OutputSet::prepare(&config.output.dir)?;
     let mut progress = Progress::new(quiet);
-    let output = slam_runtime::run_until(config, &mut progress, stop)?;
+    let mut streams = Streams::new(set.path(), config)?;
+    let output = {
+        let mut observers: Vec<&mut dyn Observer> = vec![&mut progress];
+        streams.add_to(&mut observers);
+        slam_runtime::run_until(config, &mut observers, stop)?
+    };
     progress.finish();
     for warning in &output.input.warnings {
         eprintln!("slam: warning: {warning}");
     }
     let metrics = RunMetrics::compute(&output, config)?;
     write_outputs(set.path(), config, &output, &metrics)?;
+    let notes = streams.finish(set.path(), &output, grid_required)?;
     set.commit()?;
     let dir = &config.output.dir;
     let mut summary = summary_line(&output, &metrics, dir);
+    for note in notes {
+        summary.push_str("; ");
+        summary.push_str(&note);
+    }
     for stage in &output.postprocess {
         summary.push('\n');
         summary.push_str(&stage.summary);
@@ -151,6 +204,78 @@ pub fn run_config_until(
         );
     }
     Ok((summary, RunStatus::of(&output)))
+}
+
+/// The `--grid` error for data without laser scans.
+fn no_scans_error(data: &str) -> String {
+    format!(
+        "--grid: {data} has no laser scans, so there is no occupancy grid to write (rb2d and \
+         Victoria Park logs carry ready-made observations); drop --grid"
+    )
+}
+
+/// The outputs written as the run goes: the occupancy grid, the g2o graph's odometry, the
+/// MCAP log.
+struct Streams {
+    grid: Option<GridObserver>,
+    g2o: Option<G2oObserver>,
+    mcap: Option<McapLog>,
+}
+
+impl Streams {
+    /// The observers `config` asks for; `run.mcap` is created in the set folder `dir`.
+    fn new(dir: &Path, config: &Config) -> Result<Self> {
+        let output = &config.output;
+        Ok(Streams {
+            grid: output
+                .grid
+                .then(|| GridObserver::new(output.grid_resolution, output.grid_max_range)),
+            g2o: output.g2o.then(G2oObserver::default),
+            mcap: match output.mcap {
+                true => Some(McapLog::create(
+                    &dir.join("run.mcap"),
+                    output.mcap_map_interval_s,
+                )?),
+                false => None,
+            },
+        })
+    }
+
+    fn add_to<'a>(&'a mut self, observers: &mut Vec<&'a mut dyn Observer>) {
+        if let Some(grid) = &mut self.grid {
+            observers.push(grid);
+        }
+        if let Some(g2o) = &mut self.g2o {
+            observers.push(g2o);
+        }
+        if let Some(mcap) = &mut self.mcap {
+            observers.push(mcap);
+        }
+    }
+
+    /// Writes the files into `dir`; returns the notes for the summary.
+    fn finish(self, dir: &Path, output: &RunOutput, grid_required: bool) -> Result<Vec<String>> {
+        let mut notes = Vec::new();
+        if let Some(observer) = self.grid {
+            let grid = &observer.grid;
+            if grid.scans() == 0 {
+                if grid_required {
+                    return Err(CliError::Usage(no_scans_error(&output.name)));
+                }
+                notes.push("no occupancy grid (the data have no laser scans)".to_string());
+            } else {
+                write_atomically(&dir.join("map.pgm"), &grid.pgm())?;
+                write_text(dir, "map.yaml", &grid.yaml("map.pgm"))?;
+            }
+        }
+        if let Some(observer) = self.g2o {
+            write_text(dir, "graph.g2o", &g2o_text(output, &observer))?;
+        }
+        if let Some(log) = self.mcap {
+            log.finish(output.estimator.as_ref())?;
+        }
+        Ok(notes)
+    }
 }
 
 /// Every output of a run into `dir`.
@@ -318,6 +443,74 @@ mod tests {
         // An EKF's map belongs to its estimates: no separate map path.
         assert!(metrics["map_path_ate_rmse_m"].is_null());
         assert!(!dir.path().join("out/map_path.tum").exists());
+    }
+
+    #[test]
+    fn the_standard_outputs_hold_the_walls_the_graph_and_the_replay() {
+        let dir = temp_dir("standard");
+        let world_path = short_world(dir.path());
+        let mut config = Config::default();
+        config.data.spec = format!("world:{}", world_path.display());
+        config.output.dir = dir.path().join("out");
+        config.output.plots = false;
+        config.output.grid = true;
+        config.output.g2o = true;
+        config.output.mcap = true;
+        run_config(&config, true).unwrap();
+        let out = dir.path().join("out");
+        // The grid: a map_saver image and its yaml (interop/test_outputs.py reads them).
+        let yaml = std::fs::read_to_string(out.join("map.yaml")).unwrap();
+        assert!(
+            yaml.contains("image: map.pgm") && yaml.contains("mode: trinary"),
+            "{yaml}"
+        );
+        assert!(
+            std::fs::read(out.join("map.pgm"))
+                .unwrap()
+                .starts_with(b"P5\n")
+        );
+        // The graph: one vertex per step, one edge fewer, the walls as pairs of vertices.
+        let metrics = read_json(&out.join("metrics.json"));
+        let steps = metrics["steps"].as_u64().unwrap() as usize;
+        let graph = std::fs::read_to_string(out.join("graph.g2o")).unwrap();
+        let count = |tag: &str| graph.lines().filter(|l| l.starts_with(tag)).count();
+        assert_eq!(count("VERTEX_SE2 "), steps);
+        assert_eq!(count("EDGE_SE2 "), steps - 1);
+        let walls = count("# WALL ");
+        assert!(walls >= 5, "{walls} walls");
+        assert_eq!(count("VERTEX_XY "), 2 * walls + count("EDGE_SE2_XY "));
+        // The replay log ends with the MCAP magic.
+        let mcap = std::fs::read(out.join("run.mcap")).unwrap();
+        assert!(mcap.ends_with(b"\x89MCAP0\r\n"));
+    }
+
+    #[test]
+    fn a_grid_without_scans_is_a_note_from_the_config_and_an_error_from_the_flag() {
+        let dir = temp_dir("no-grid");
+        let world = Path::new(env!("CARGO_MANIFEST_DIR")).join("../worlds/rb2d-circle.toml");
+        let mut config = Config::default();
+        config.data.spec = format!("world:{}", world.display());
+        config.data.max_events = 100;
+        config.output.dir = dir.path().join("out");
+        config.output.plots = false;
+        config.output.grid = true;
+        let summary = run_config(&config, true).unwrap();
+        assert!(summary.contains("no occupancy grid"), "{summary}");
+        assert!(!dir.path().join("out/map.pgm").exists());
+        let error = run_inner(&config, true, &AtomicBool::new(false), true)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.contains("--grid") && error.contains("no laser scans"),
+            "{error}"
+        );
+        // Nothing was replaced: the former set is still there.
+        assert!(dir.path().join("out/metrics.json").exists());
+        config.data.spec = "rb2d:/no/such.rb2d".into();
+        let error = run_inner(&config, true, &AtomicBool::new(false), true)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("--grid: rb2d has no laser scans"), "{error}");
     }
 
     #[test]

@@ -20,6 +20,12 @@
 //! [output]
 //! dir = "slam-out"
 //! plots = true
+//! grid = false            # map.pgm + map.yaml, the occupancy grid (runs with a laser)
+//! grid_resolution = 0.05  # its cell side, m
+//! grid_max_range = 30.0   # beams are cast this far at most (free only beyond), m
+//! g2o = false             # graph.g2o, the pose graph with landmarks and walls
+//! mcap = false            # run.mcap, the run for Foxglove (Foxglove schemas, JSON)
+//! mcap_map_interval_s = 1.0   # data time between two maps in run.mcap, s
 //! ```
 
 use std::path::{Path, PathBuf};
@@ -41,6 +47,21 @@ pub struct OutputConfig {
     pub dir: PathBuf,
     /// Draw `map.svg` and `map.png`.
     pub plots: bool,
+    /// Write the occupancy grid of the scans placed by the estimated poses, `map.pgm` and
+    /// `map.yaml` (ROS map_server format); a run without laser scans has none.
+    pub grid: bool,
+    /// Cell side of the occupancy grid, m.
+    pub grid_resolution: f64,
+    /// Longest beam cast into the grid, m: a longer reading, or a reading at the laser's
+    /// maximum range, marks the cells up to this distance free and nothing occupied (so that
+    /// beams through windows and doors do not grow the grid by the laser's full range).
+    pub grid_max_range: f64,
+    /// Write the pose graph with the landmarks and walls, `graph.g2o`.
+    pub g2o: bool,
+    /// Write `run.mcap`, the run for Foxglove (poses, scans, map, covariance ellipses).
+    pub mcap: bool,
+    /// Data time between two maps in `run.mcap`, s (0: at every time step).
+    pub mcap_map_interval_s: f64,
 }
 
 impl Default for OutputConfig {
@@ -48,7 +69,48 @@ impl Default for OutputConfig {
         OutputConfig {
             dir: PathBuf::from("slam-out"),
             plots: true,
+            grid: false,
+            grid_resolution: 0.05,
+            grid_max_range: 30.0,
+            g2o: false,
+            mcap: false,
+            mcap_map_interval_s: 1.0,
         }
+    }
+}
+
+impl OutputConfig {
+    /// Checks the values: a positive grid resolution and range, a map interval of zero or
+    /// more.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.grid_resolution.is_finite() && self.grid_resolution > 0.0) {
+            return Err(RuntimeError::setting(
+                "output",
+                format!(
+                    "grid_resolution = {}: give a positive cell side in metres",
+                    self.grid_resolution
+                ),
+            ));
+        }
+        if !(self.grid_max_range.is_finite() && self.grid_max_range > 0.0) {
+            return Err(RuntimeError::setting(
+                "output",
+                format!(
+                    "grid_max_range = {}: give a positive distance in metres",
+                    self.grid_max_range
+                ),
+            ));
+        }
+        if !(self.mcap_map_interval_s.is_finite() && self.mcap_map_interval_s >= 0.0) {
+            return Err(RuntimeError::setting(
+                "output",
+                format!(
+                    "mcap_map_interval_s = {}: give zero or more seconds",
+                    self.mcap_map_interval_s
+                ),
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -196,6 +258,7 @@ impl Config {
     /// Checks the estimator's, the front-end's and the stages' settings before any data is
     /// read.
     pub fn validate(&self) -> Result<()> {
+        self.output.validate()?;
         self.estimator.validate()?;
         self.frontend.validate()?;
         for stage in &self.postprocess {
@@ -378,5 +441,25 @@ mod tests {
             let error = Config::from_toml(text, "t.toml").unwrap_err().to_string();
             assert!(error.contains(expected), "{error}\nvs {expected}");
         }
+    }
+
+    #[test]
+    fn output_keys_are_checked_and_unknown_ones_refused() {
+        let config = Config::from_toml(
+            "[output]\ngrid = true\ngrid_resolution = 0.1\ng2o = true\nmcap = true\n",
+            "t",
+        )
+        .unwrap();
+        assert!(config.output.grid && config.output.g2o && config.output.mcap);
+        assert_eq!(config.output.grid_resolution, 0.1);
+        let error = Config::from_toml("[output]\ngird = true\n", "t")
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("gird"), "{error}");
+        let config = Config::from_toml("[output]\ngrid_resolution = -0.05\n", "t").unwrap();
+        let error = config.validate().unwrap_err().to_string();
+        assert!(error.contains("grid_resolution = -0.05"), "{error}");
+        let config = Config::from_toml("[output]\nmcap_map_interval_s = nan\n", "t").unwrap();
+        assert!(config.validate().is_err());
     }
 }

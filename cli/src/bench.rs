@@ -86,6 +86,9 @@ pub fn measure(args: &BenchArgs) -> Result<BenchReport> {
         out: None,
         seed: args.seed,
         quiet: true,
+        grid: false,
+        g2o: false,
+        mcap: false,
     };
     let config = config_of(&run_args)?;
     let mut runs = Vec::with_capacity(args.runs);

@@ -2,7 +2,8 @@
 //! of an estimated trajectory against ground truth, computed as the common tools compute them
 //! (`evo_ape tum GT EST -a`, `evo_rpe tum GT EST`, TUM RGB-D `associate.py` /
 //! `evaluate_ate.py`): the computation is [`slam_runtime::eval::trajectory`]; this command
-//! reads the files, prints the figures and writes them as JSON.
+//! reads the files, prints the figures, writes them as JSON and draws both trajectories and
+//! the error over time (`EST` with `.eval.png` for its extension, or `--plot FILE`).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -15,6 +16,7 @@ use slam_runtime::eval::trajectory::{
 use slam_sensors::data::{StampedPose, read_tum, write_atomically};
 
 use crate::error::{CliError, Result};
+use crate::plot::TrajectoryComparison;
 
 /// Arguments of `slam eval`.
 #[derive(Debug, clap::Args)]
@@ -42,6 +44,14 @@ pub struct EvalArgs {
     /// Also write all numbers to this JSON file.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// The plot of both trajectories (the estimate aligned as --align says) and of the
+    /// position error over time: .png or .svg [default: ESTIMATE with the extension
+    /// .eval.png, beside it].
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// Draw no plot.
+    #[arg(long, conflicts_with = "plot")]
+    pub no_plot: bool,
 }
 
 /// How the estimate is aligned onto ground truth before the errors are computed.
@@ -276,7 +286,78 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     if let Some(path) = &args.json {
         write_json(path, &report)?;
     }
+    if let Some(path) = plot_path(args) {
+        comparison(args, &gt, &est, &pairs, &ate).save(&path)?;
+        println!("plot: {}", path.display());
+    }
     Ok(())
+}
+
+/// Where the plot goes: `--plot`, else the estimate's path with the extension `.eval.png`;
+/// `None` with `--no-plot`.
+fn plot_path(args: &EvalArgs) -> Option<PathBuf> {
+    if args.no_plot {
+        return None;
+    }
+    Some(
+        args.plot
+            .clone()
+            .unwrap_or_else(|| args.estimate.with_extension("eval.png")),
+    )
+}
+
+/// The figure of both trajectories (the estimate aligned) and the error of each pair over
+/// time.
+fn comparison(
+    args: &EvalArgs,
+    gt: &[StampedPose],
+    est: &[StampedPose],
+    pairs: &[(usize, usize)],
+    ate: &Ate,
+) -> TrajectoryComparison {
+    let name = |p: &Path| {
+        p.file_name().map_or_else(
+            || p.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        )
+    };
+    let errors = pairs
+        .iter()
+        .map(|&(g, e)| {
+            let aligned = ate.alignment.apply(&est[e].pose.translation);
+            (est[e].time, (gt[g].pose.translation - aligned).norm())
+        })
+        .collect();
+    TrajectoryComparison {
+        title: format!(
+            "{} against {}",
+            name(&args.estimate),
+            name(&args.ground_truth)
+        ),
+        ground_truth: gt.iter().map(|p| p.pose.translation.xy()).collect(),
+        estimate: est
+            .iter()
+            .map(|p| ate.alignment.apply(&p.pose.translation).xy())
+            .collect(),
+        errors,
+        labels: [
+            format!("ground truth ({} poses)", gt.len()),
+            format!(
+                "estimate ({} poses, aligned: --align {})",
+                est.len(),
+                match args.align {
+                    AlignArg::None => "none",
+                    AlignArg::Se3 => "se3",
+                    AlignArg::Sim3 => "sim3",
+                }
+            ),
+            format!(
+                "position error of the {} matched poses (ATE rmse {:.3} m)",
+                pairs.len(),
+                ate.errors.rmse
+            ),
+        ],
+    }
 }
 
 fn report(
@@ -402,6 +483,8 @@ mod tests {
             delta_unit: DeltaUnit::Frames,
             all_pairs: false,
             json: None,
+            plot: None,
+            no_plot: false,
         }
     }
 
@@ -432,7 +515,9 @@ mod tests {
             .unwrap()
             .map(|e| e.unwrap().file_name())
             .collect();
-        assert_eq!(names.len(), 3, "{names:?}");
+        // The ground truth, the estimate, the JSON and the plot beside the estimate.
+        assert_eq!(names.len(), 4, "{names:?}");
+        assert!(dir.path().join("est.eval.png").is_file(), "{names:?}");
         // The summary names the alignment.
         let report = report(
             &a,
@@ -454,6 +539,48 @@ mod tests {
         assert!(
             text.contains("Umeyama") && text.contains("no scale") && text.contains("ATE"),
             "{text}"
+        );
+    }
+
+    #[test]
+    fn run_draws_both_trajectories_and_the_error() {
+        let dir = test_dir("plot");
+        let gt = helix(60);
+        let mut est = transformed(&gt, 1.0, &known_rotation(), &Vector3::new(1.0, 2.0, 0.0));
+        for (k, p) in est.iter_mut().enumerate() {
+            p.pose.translation.x += 0.05 * (k as f64 * 0.3).sin();
+        }
+        let (gt_path, est_path) = (dir.path().join("gt.tum"), dir.path().join("est.tum"));
+        slam_sensors::data::write_tum(&gt_path, &gt).unwrap();
+        slam_sensors::data::write_tum(&est_path, &est).unwrap();
+        let mut a = args(&gt_path, &est_path);
+        run(&a).unwrap();
+        let png = std::fs::read(dir.path().join("est.eval.png")).unwrap();
+        assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"));
+        // The PNG's width (big-endian at byte 16) is the figure's.
+        assert_eq!(
+            u32::from_be_bytes([png[16], png[17], png[18], png[19]]),
+            1200
+        );
+        a.plot = Some(dir.path().join("chosen.svg"));
+        run(&a).unwrap();
+        let svg = std::fs::read_to_string(dir.path().join("chosen.svg")).unwrap();
+        assert!(
+            svg.contains("<svg") && svg.contains("position error"),
+            "{svg:.200}"
+        );
+        std::fs::remove_file(dir.path().join("est.eval.png")).unwrap();
+        a.plot = None;
+        a.no_plot = true;
+        run(&a).unwrap();
+        assert!(!dir.path().join("est.eval.png").exists());
+        // An unknown image format is an error naming the file.
+        a.no_plot = false;
+        a.plot = Some(dir.path().join("plot.gif"));
+        let e = run(&a).unwrap_err().to_string();
+        assert!(
+            e.contains("plot.gif") && e.contains("unknown image format"),
+            "{e}"
         );
     }
 

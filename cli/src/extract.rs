@@ -18,7 +18,7 @@ use crate::plot::{Figure, palette};
 /// Arguments of `slam extract`.
 #[derive(Debug, clap::Args)]
 pub struct ExtractArgs {
-    /// Data: sim, world:FILE, carmen:FILE (see `slam help`).
+    /// Data: sim (the built-in world), world:FILE or carmen:FILE, as `slam run --data`.
     #[arg(long, default_value = "sim")]
     pub data: String,
     /// Which scan (0-based, in stream order).

@@ -12,6 +12,7 @@
 
 mod bench;
 mod camera;
+mod config_print;
 mod consistency;
 pub mod error;
 mod eval;
@@ -31,7 +32,7 @@ mod simulate;
 use std::ffi::OsString;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 
 pub use error::{CliError, Result};
 pub use run::{EXIT_DIVERGED, EXIT_INTERRUPTED, RunArgs, RunStatus, run_config, run_config_until};
@@ -70,6 +71,26 @@ enum Command {
     /// Run the configured estimator several times without outputs and print the time per
     /// step, the CPU time, the peak resident memory and the state size.
     Bench(bench::BenchArgs),
+    /// Show the configuration `slam run` uses, every default included (`slam config print`).
+    Config(config_print::ConfigArgs),
+    /// Print a shell completion script (bash, zsh, fish, elvish, powershell) to standard
+    /// output; e.g. `slam completions bash > ~/.local/share/bash-completion/completions/slam`.
+    Completions(CompletionsArgs),
+}
+
+/// Arguments of `slam completions`.
+#[derive(Debug, clap::Args)]
+struct CompletionsArgs {
+    /// The shell to complete for.
+    #[arg(value_enum)]
+    shell: clap_complete::Shell,
+}
+
+/// The completion script of `slam` for `shell`.
+fn completions(shell: clap_complete::Shell) -> String {
+    let mut script = Vec::new();
+    clap_complete::generate(shell, &mut Cli::command(), "slam", &mut script);
+    String::from_utf8_lossy(&script).into_owned()
 }
 
 /// Runs the command line `args` (the first is the program name) and returns what it
@@ -95,6 +116,8 @@ where
         Command::Eval(args) => eval::run(args).map(|()| String::new()),
         Command::Bench(args) => bench::run_bench(args),
         Command::Prior(args) => prior::run(args).map(|()| String::new()),
+        Command::Config(args) => config_print::run(args),
+        Command::Completions(args) => Ok(completions(args.shell)),
     }
 }
 
@@ -136,6 +159,11 @@ pub fn main_with(args: impl IntoIterator<Item = OsString>) -> ExitCode {
         Command::Eval(args) => eval::run(args),
         Command::Prior(args) => prior::run(args),
         Command::Bench(args) => bench::run_bench(args).map(|text| println!("{text}")),
+        Command::Config(args) => config_print::run(args).map(|text| print!("{text}")),
+        Command::Completions(args) => {
+            print!("{}", completions(args.shell));
+            Ok(())
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -143,5 +171,68 @@ pub fn main_with(args: impl IntoIterator<Item = OsString>) -> ExitCode {
             eprintln!("slam: {}", error.chain());
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The help text of every subcommand (and of the command itself).
+    fn helps() -> Vec<(String, String)> {
+        let mut cli = Cli::command();
+        let mut helps = vec![("slam".to_string(), cli.render_long_help().to_string())];
+        for sub in cli.get_subcommands_mut() {
+            let name = sub.get_name().to_string();
+            helps.push((name, sub.render_long_help().to_string()));
+        }
+        helps
+    }
+
+    #[test]
+    fn help_texts_point_to_other_help_not_to_themselves() {
+        let helps = helps();
+        let names: Vec<&str> = helps.iter().map(|(n, _)| n.as_str()).collect();
+        for expected in ["run", "eval", "config", "completions", "help"] {
+            assert!(names.contains(&expected), "{names:?}");
+        }
+        for (name, help) in &helps {
+            assert!(
+                !help.contains(&format!("slam {name} --help")),
+                "{name}: {help}"
+            );
+            // `slam help` lists the commands only: it explains no option.
+            assert!(!help.contains("`slam help`"), "{name}: {help}");
+            // Every `slam X` a help text mentions is a subcommand.
+            for mention in help.split("`slam ").skip(1) {
+                let word = mention.split([' ', '`']).next().unwrap_or("");
+                assert!(
+                    names.contains(&word),
+                    "{name} mentions `slam {word}`: {help}"
+                );
+            }
+        }
+        let run = &helps.iter().find(|(n, _)| n == "run").unwrap().1;
+        assert!(run.contains("slam config print"), "{run}");
+    }
+
+    #[test]
+    fn completions_are_printed_for_the_common_shells() {
+        for shell in ["bash", "zsh", "fish"] {
+            let script = command(["slam", "completions", shell]).unwrap();
+            for word in ["slam", "run", "eval", "config", "completions", "--data"] {
+                assert!(script.contains(word), "{shell}: no {word}");
+            }
+        }
+        let bash = command(["slam", "completions", "bash"]).unwrap();
+        assert!(bash.contains("complete -F"), "{bash:.300}");
+        assert!(command(["slam", "completions", "tcsh"]).is_err());
+    }
+
+    #[test]
+    fn config_print_is_a_command() {
+        let text = command(["slam", "config", "print"]).unwrap();
+        let parsed = slam_runtime::Config::from_toml(&text, "printed").unwrap();
+        assert!(text.ends_with(&parsed.to_toml().unwrap()));
     }
 }

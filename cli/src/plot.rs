@@ -1,7 +1,8 @@
 //! Figures in world coordinates (metres, equal axes), rendered to PNG or SVG with plotters.
 //!
-//! Text needs a font: the first of a few common system TrueType fonts is loaded at run time;
-//! without one, figures are drawn without labels rather than failing.
+//! Text is set in DejaVu Sans, embedded in the program (`cli/assets/fonts`, with its license),
+//! so that figures look the same on every machine. Legends go in a band below the plot, never
+//! over the data.
 
 use std::path::Path;
 use std::sync::OnceLock;
@@ -211,29 +212,50 @@ impl Figure {
         save_drawing(self, path)
     }
 
-    /// The pixel size and the header height for the data's aspect ratio.
-    fn layout(&self) -> ((u32, u32), u32) {
+    /// The pixel size, the header height and the height of the chart (title, plot and axes)
+    /// above the legend band, for the data's aspect ratio.
+    fn layout(&self) -> Layout {
         let (x0, x1, y0, y1) = self.bounds();
         let header = if font_available() { 40 } else { 10 };
         let plot_width = self.width.saturating_sub(70).max(100);
-        let height = ((plot_width as f64) * (y1 - y0) / (x1 - x0))
+        let chart_height = ((plot_width as f64) * (y1 - y0) / (x1 - x0))
             .round()
             .clamp(100.0, 8000.0) as u32
             + header
             + 50;
-        ((self.width, height), header)
+        let legend = LegendBand::new(&self.legends(), self.width);
+        Layout {
+            size: (self.width, chart_height + legend.height),
+            header,
+            chart_height,
+            legend,
+        }
     }
 
+    /// The legend lines, in order.
+    fn legends(&self) -> Vec<(String, Colour)> {
+        self.shapes
+            .iter()
+            .filter_map(|shape| match shape {
+                Shape::Legend { text, colour } => Some((text.clone(), *colour)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Draws the figure; returns where its plot and legend went.
     fn draw<DB: DrawingBackend>(
         &self,
         root: &DrawingArea<DB, plotters::coord::Shift>,
         (x0, x1, y0, y1): (f64, f64, f64, f64),
-        header: u32,
-    ) -> std::result::Result<(), String> {
+        layout: &Layout,
+    ) -> std::result::Result<Drawn, String> {
+        let header = layout.header;
         let text = font_available();
         let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
         root.fill(&WHITE).map_err(e)?;
-        let mut builder = ChartBuilder::on(root);
+        let (upper, band) = root.split_vertically(layout.chart_height);
+        let mut builder = ChartBuilder::on(&upper);
         builder
             .margin(10)
             .x_label_area_size(if text { 30 } else { 0 })
@@ -252,7 +274,7 @@ impl Figure {
             mesh.disable_x_axis().disable_y_axis();
         }
         mesh.draw().map_err(e)?;
-        let mut legends = Vec::new();
+        let plot = chart.plotting_area().get_pixel_range();
         for shape in &self.shapes {
             match shape {
                 Shape::Segment {
@@ -338,42 +360,123 @@ impl Figure {
                         ))
                         .map_err(e)?;
                 }
-                Shape::Legend { text, colour } => legends.push((text.clone(), *colour)),
+                Shape::Legend { .. } => {}
             }
         }
-        if text {
-            for (i, (label, colour)) in legends.iter().enumerate() {
-                let y = header as i32 + 20 + 18 * i as i32;
-                root.draw(&Rectangle::new([(80, y - 5), (95, y + 5)], colour.filled()))
-                    .map_err(e)?;
-                root.draw(&Text::new(
-                    label.clone(),
-                    (100, y - 8),
-                    ("sans-serif", 15).into_font().color(&palette::TEXT),
-                ))
-                .map_err(e)?;
-            }
-        }
-        root.present().map_err(e)
+        let legend = layout.legend.draw(&band).map_err(e)?;
+        root.present().map_err(e)?;
+        Ok(Drawn {
+            plot: (plot.0.start, plot.1.start, plot.0.end, plot.1.end),
+            legend,
+        })
     }
 }
 
-/// Registers a system TrueType font for labels, once; false when none is found.
-fn font_available() -> bool {
+/// A pixel rectangle: left, top, right, bottom (right and bottom excluded).
+pub(crate) type PixelRect = (i32, i32, i32, i32);
+
+/// Where a drawing's parts went: its plotting area and its legend entries (swatch and text),
+/// in the pixels of the whole image. Saving ignores it; the tests check that no legend entry
+/// is on the plot.
+#[derive(Clone, Debug)]
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) struct Drawn {
+    /// The plotting area (inside the axes).
+    pub plot: PixelRect,
+    /// Each legend entry.
+    pub legend: Vec<PixelRect>,
+}
+
+/// The pixel layout of a [`Figure`].
+#[derive(Clone, Debug)]
+struct Layout {
+    size: (u32, u32),
+    header: u32,
+    /// The height of the chart (title, plot, axes) above the legend band.
+    chart_height: u32,
+    legend: LegendBand,
+}
+
+/// The font size of legend text.
+const LEGEND_FONT: u32 = 15;
+/// The height of a legend row, px.
+const LEGEND_ROW: u32 = 22;
+
+/// Legend entries laid out in rows across a band below the plot.
+#[derive(Clone, Debug, Default)]
+struct LegendBand {
+    /// Each entry: its text, colour and top-left corner in the band.
+    entries: Vec<(String, Colour, (i32, i32))>,
+    /// The band's height, px (0 without entries or without text).
+    height: u32,
+}
+
+impl LegendBand {
+    /// Entries left to right, wrapping at `width`.
+    fn new(legends: &[(String, Colour)], width: u32) -> Self {
+        if legends.is_empty() || !font_available() {
+            return LegendBand::default();
+        }
+        let font = ("sans-serif", LEGEND_FONT).into_font();
+        let (left, right) = (60, width.saturating_sub(10) as i32);
+        let (mut x, mut y) = (left, 8);
+        let mut entries = Vec::new();
+        for (text, colour) in legends {
+            let text_width = font.box_size(text).map_or(8 * text.len() as u32, |s| s.0) as i32;
+            let entry = 20 + text_width + 25;
+            if x > left && x + entry > right {
+                x = left;
+                y += LEGEND_ROW as i32;
+            }
+            entries.push((text.clone(), *colour, (x, y)));
+            x += entry;
+        }
+        LegendBand {
+            entries,
+            height: y as u32 + LEGEND_ROW + 6,
+        }
+    }
+
+    /// Draws the entries on `band`; returns their rectangles in the whole image's pixels.
+    fn draw<DB: DrawingBackend>(
+        &self,
+        band: &DrawingArea<DB, plotters::coord::Shift>,
+    ) -> std::result::Result<Vec<PixelRect>, DrawingAreaErrorKind<DB::ErrorType>> {
+        let (origin_x, origin_y) = {
+            let (x, y) = band.get_pixel_range();
+            (x.start, y.start)
+        };
+        let font = ("sans-serif", LEGEND_FONT)
+            .into_font()
+            .color(&palette::TEXT);
+        let mut drawn = Vec::new();
+        for (text, colour, (x, y)) in &self.entries {
+            band.draw(&Rectangle::new(
+                [(*x, *y + 5), (*x + 15, *y + 15)],
+                colour.filled(),
+            ))?;
+            band.draw(&Text::new(text.clone(), (*x + 20, *y + 2), font.clone()))?;
+            let width = band.estimate_text_size(text, &font)?.0 as i32;
+            drawn.push((
+                origin_x + x,
+                origin_y + y,
+                origin_x + x + 20 + width,
+                origin_y + y + LEGEND_ROW as i32,
+            ));
+        }
+        Ok(drawn)
+    }
+}
+
+/// DejaVu Sans, embedded (see `cli/assets/fonts/README.md` and its license beside it).
+const EMBEDDED_FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+
+/// Registers the embedded font as plotters' `sans-serif`, once; false if that failed (then
+/// figures are drawn without text rather than not at all).
+pub(crate) fn font_available() -> bool {
     static LOADED: OnceLock<bool> = OnceLock::new();
     *LOADED.get_or_init(|| {
-        const CANDIDATES: [&str; 4] = [
-            "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-            "/usr/share/fonts/TTF/DejaVuSans.ttf",
-            "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-            "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-        ];
-        CANDIDATES.iter().any(|path| {
-            std::fs::read(path).ok().is_some_and(|bytes| {
-                let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-                plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).is_ok()
-            })
-        })
+        plotters::style::register_font("sans-serif", FontStyle::Normal, EMBEDDED_FONT).is_ok()
     })
 }
 
@@ -381,23 +484,23 @@ fn font_available() -> bool {
 trait Drawing {
     /// The image size in pixels.
     fn size(&self) -> (u32, u32);
-    /// Draws onto `root`.
+    /// Draws onto `root`; returns where the plot and the legend went.
     fn render<DB: DrawingBackend>(
         &self,
         root: &DrawingArea<DB, plotters::coord::Shift>,
-    ) -> std::result::Result<(), String>;
+    ) -> std::result::Result<Drawn, String>;
 }
 
 impl Drawing for Figure {
     fn size(&self) -> (u32, u32) {
-        self.layout().0
+        self.layout().size
     }
 
     fn render<DB: DrawingBackend>(
         &self,
         root: &DrawingArea<DB, plotters::coord::Shift>,
-    ) -> std::result::Result<(), String> {
-        self.draw(root, self.bounds(), self.layout().1)
+    ) -> std::result::Result<Drawn, String> {
+        self.draw(root, self.bounds(), &self.layout())
     }
 }
 
@@ -412,8 +515,12 @@ fn save_drawing(drawing: &impl Drawing, path: &Path) -> Result<()> {
     let temporary = path.with_extension(format!("partial.{extension}"));
     let size = drawing.size();
     let result = match extension {
-        "svg" => drawing.render(&SVGBackend::new(&temporary, size).into_drawing_area()),
-        "png" => drawing.render(&BitMapBackend::new(&temporary, size).into_drawing_area()),
+        "svg" => drawing
+            .render(&SVGBackend::new(&temporary, size).into_drawing_area())
+            .map(drop),
+        "png" => drawing
+            .render(&BitMapBackend::new(&temporary, size).into_drawing_area())
+            .map(drop),
         other => {
             return Err(error(format!(
                 "unknown image format `{other}` (use .png or .svg)"
@@ -454,15 +561,19 @@ pub struct LineChart {
     pub band: Option<(f64, f64)>,
 }
 
+/// The size of a [`LineChart`]'s chart (title, plot, axes), px.
+const LINE_CHART_SIZE: (u32, u32) = (1400, 700);
+
 impl Drawing for LineChart {
     fn size(&self) -> (u32, u32) {
-        (1400, 700)
+        let (width, height) = LINE_CHART_SIZE;
+        (width, height + self.legend().height)
     }
 
     fn render<DB: DrawingBackend>(
         &self,
         root: &DrawingArea<DB, plotters::coord::Shift>,
-    ) -> std::result::Result<(), String> {
+    ) -> std::result::Result<Drawn, String> {
         self.draw(root)
     }
 }
@@ -473,13 +584,24 @@ impl LineChart {
         save_drawing(self, path)
     }
 
+    /// The legend band: one entry per series.
+    fn legend(&self) -> LegendBand {
+        let legends: Vec<(String, Colour)> = self
+            .series
+            .iter()
+            .map(|s| (s.label.clone(), s.colour))
+            .collect();
+        LegendBand::new(&legends, LINE_CHART_SIZE.0)
+    }
+
     fn draw<DB: DrawingBackend>(
         &self,
         root: &DrawingArea<DB, plotters::coord::Shift>,
-    ) -> std::result::Result<(), String> {
+    ) -> std::result::Result<Drawn, String> {
         let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
         let text = font_available();
         root.fill(&WHITE).map_err(e)?;
+        let (upper, band) = root.split_vertically(LINE_CHART_SIZE.1);
         let points = self.series.iter().flat_map(|s| s.points.iter());
         let (mut x0, mut x1, mut y0, mut y1) = (
             f64::INFINITY,
@@ -505,7 +627,7 @@ impl LineChart {
             y0 = 0.1;
             y1 = 10.0;
         }
-        let mut builder = ChartBuilder::on(root);
+        let mut builder = ChartBuilder::on(&upper);
         builder
             .margin(15)
             .x_label_area_size(if text { 40 } else { 0 })
@@ -542,9 +664,10 @@ impl LineChart {
                 )))
                 .map_err(e)?;
         }
+        let plot = chart.plotting_area().get_pixel_range();
         for series in &self.series {
             let colour = series.colour;
-            let drawn = chart
+            chart
                 .draw_series(LineSeries::new(
                     series
                         .points
@@ -554,22 +677,171 @@ impl LineChart {
                     colour.stroke_width(1),
                 ))
                 .map_err(e)?;
-            if text {
-                drawn.label(series.label.clone()).legend(move |(x, y)| {
-                    Rectangle::new([(x, y - 4), (x + 14, y + 4)], colour.filled())
-                });
-            }
         }
+        let legend = self.legend().draw(&band).map_err(e)?;
+        root.present().map_err(e)?;
+        Ok(Drawn {
+            plot: (plot.0.start, plot.1.start, plot.0.end, plot.1.end),
+            legend,
+        })
+    }
+}
+
+/// An estimated trajectory against ground truth: both paths overlaid in the plane (equal
+/// axes), and the position error of each matched pose over time below, with a legend band.
+#[derive(Clone, Debug)]
+pub struct TrajectoryComparison {
+    /// Title.
+    pub title: String,
+    /// The ground-truth path, m.
+    pub ground_truth: Vec<Vector2<f64>>,
+    /// The estimated path, aligned onto ground truth, m.
+    pub estimate: Vec<Vector2<f64>>,
+    /// `(time, error)` of each matched pose, s and m.
+    pub errors: Vec<(f64, f64)>,
+    /// The legend text of the ground truth, the estimate and the error.
+    pub labels: [String; 3],
+}
+
+/// The width of a [`TrajectoryComparison`], px.
+const COMPARISON_WIDTH: u32 = 1200;
+/// The height of its error panel, px.
+const ERROR_PANEL: u32 = 300;
+
+impl TrajectoryComparison {
+    /// Writes the figure as PNG or SVG (by extension), completely or not at all.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        save_drawing(self, path)
+    }
+
+    fn legend(&self) -> LegendBand {
+        let colours = [palette::TRUE_PATH, palette::PATH, palette::WALL];
+        let legends: Vec<(String, Colour)> = self.labels.iter().cloned().zip(colours).collect();
+        LegendBand::new(&legends, COMPARISON_WIDTH)
+    }
+
+    /// The plane's ranges, widened so that a metre is as long on both axes, and the height
+    /// of its plot, px.
+    fn plane(&self) -> ((f64, f64, f64, f64), u32) {
+        let mut figure = Figure::new("", COMPARISON_WIDTH);
+        figure.polyline(self.ground_truth.clone(), palette::TRUE_PATH, 1);
+        figure.polyline(self.estimate.clone(), palette::PATH, 1);
+        let (mut x0, mut x1, mut y0, mut y1) = figure.bounds();
+        let plot_width = f64::from(COMPARISON_WIDTH - 90);
+        let height = (plot_width * (y1 - y0) / (x1 - x0)).clamp(250.0, 1000.0);
+        let (dx, dy) = (x1 - x0, y1 - y0);
+        if height / plot_width > dy / dx {
+            let grow = (dx * height / plot_width - dy) / 2.0;
+            (y0, y1) = (y0 - grow, y1 + grow);
+        } else {
+            let grow = (dy * plot_width / height - dx) / 2.0;
+            (x0, x1) = (x0 - grow, x1 + grow);
+        }
+        ((x0, x1, y0, y1), height.round() as u32)
+    }
+
+    /// The height of the plane's panel (title, plot, axes), px.
+    fn plane_panel(&self) -> u32 {
+        self.plane().1 + 100
+    }
+
+    fn draw<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, plotters::coord::Shift>,
+    ) -> std::result::Result<Drawn, String> {
+        let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+        let text = font_available();
+        root.fill(&WHITE).map_err(e)?;
+        let ((x0, x1, y0, y1), _) = self.plane();
+        let (plane_area, rest) = root.split_vertically(self.plane_panel());
+        let (error_area, band) = rest.split_vertically(ERROR_PANEL);
+        let mut plane = axes(&plane_area, Some(&self.title), text)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(e)?;
+        let mut mesh = plane.configure_mesh();
+        mesh.light_line_style(RGBColor(235, 235, 235));
         if text {
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .label_font(("sans-serif", 15))
-                .draw()
+            mesh.x_desc("x [m]").y_desc("y [m]");
+        }
+        mesh.draw().map_err(e)?;
+        let plot = plane.plotting_area().get_pixel_range();
+        for (path, colour, width) in [
+            (&self.ground_truth, palette::TRUE_PATH, 2),
+            (&self.estimate, palette::PATH, 2),
+        ] {
+            plane
+                .draw_series(std::iter::once(PathElement::new(
+                    path.iter().map(|p| (p.x, p.y)).collect::<Vec<_>>(),
+                    colour.stroke_width(width),
+                )))
                 .map_err(e)?;
         }
-        root.present().map_err(e)
+        let (t0, t1, top) = self.errors.iter().fold(
+            (f64::INFINITY, f64::NEG_INFINITY, 0.0_f64),
+            |(t0, t1, top), &(t, err)| (t0.min(t), t1.max(t), top.max(err)),
+        );
+        let (t0, t1) = if t0 < t1 {
+            (t0, t1)
+        } else {
+            (t0 - 1.0, t0 + 1.0)
+        };
+        let (t0, t1) = if t0.is_finite() { (t0, t1) } else { (0.0, 1.0) };
+        let top = if top > 0.0 { top * 1.05 } else { 1.0 };
+        let mut errors = axes(&error_area, None, text)
+            .build_cartesian_2d(t0..t1, 0.0..top)
+            .map_err(e)?;
+        let mut mesh = errors.configure_mesh();
+        mesh.light_line_style(RGBColor(235, 235, 235));
+        if text {
+            mesh.x_desc("time [s]").y_desc("position error [m]");
+        }
+        mesh.draw().map_err(e)?;
+        errors
+            .draw_series(LineSeries::new(
+                self.errors.iter().copied(),
+                palette::WALL.stroke_width(1),
+            ))
+            .map_err(e)?;
+        let legend = self.legend().draw(&band).map_err(e)?;
+        root.present().map_err(e)?;
+        Ok(Drawn {
+            plot: (plot.0.start, plot.1.start, plot.0.end, plot.1.end),
+            legend,
+        })
+    }
+}
+
+/// A chart builder on `area` with room for axis labels (when there is text) and a caption.
+fn axes<'a, 'b, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, plotters::coord::Shift>,
+    caption: Option<&'b str>,
+    text: bool,
+) -> ChartBuilder<'a, 'b, DB> {
+    let mut builder = ChartBuilder::on(area);
+    builder
+        .margin(10)
+        .margin_right(30)
+        .x_label_area_size(if text { 35 } else { 0 })
+        .y_label_area_size(if text { 60 } else { 0 });
+    if let (true, Some(caption)) = (text, caption) {
+        builder.caption(caption, ("sans-serif", 20));
+    }
+    builder
+}
+
+impl Drawing for TrajectoryComparison {
+    fn size(&self) -> (u32, u32) {
+        (
+            COMPARISON_WIDTH,
+            self.plane_panel() + ERROR_PANEL + self.legend().height,
+        )
+    }
+
+    fn render<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, plotters::coord::Shift>,
+    ) -> std::result::Result<Drawn, String> {
+        self.draw(root)
     }
 }
 
@@ -666,6 +938,147 @@ fn tick_label(value: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Renders `drawing` into an RGB buffer: the pixels, the size and where its parts went.
+    fn render_rgb(drawing: &impl Drawing) -> (Vec<u8>, (u32, u32), Drawn) {
+        let size = drawing.size();
+        let mut pixels = vec![0u8; (size.0 * size.1 * 3) as usize];
+        let drawn = {
+            let root = BitMapBackend::with_buffer(&mut pixels, size).into_drawing_area();
+            drawing.render(&root).unwrap()
+        };
+        (pixels, size, drawn)
+    }
+
+    /// Pixels of exactly `colour`, inside and outside `rect`.
+    fn count_colour(
+        pixels: &[u8],
+        (width, _): (u32, u32),
+        colour: Colour,
+        rect: PixelRect,
+    ) -> (usize, usize) {
+        let (mut inside, mut outside) = (0, 0);
+        for (k, rgb) in pixels.chunks(3).enumerate() {
+            if rgb != [colour.0, colour.1, colour.2] {
+                continue;
+            }
+            let (x, y) = ((k as u32 % width) as i32, (k as u32 / width) as i32);
+            if x >= rect.0 && x < rect.2 && y >= rect.1 && y < rect.3 {
+                inside += 1;
+            } else {
+                outside += 1;
+            }
+        }
+        (inside, outside)
+    }
+
+    fn overlaps(a: PixelRect, b: PixelRect) -> bool {
+        a.0 < b.2 && b.0 < a.2 && a.1 < b.3 && b.1 < a.3
+    }
+
+    /// Legend colours used by nothing else in the test figures.
+    const KEYS: [Colour; 6] = [
+        RGBColor(1, 200, 3),
+        RGBColor(200, 1, 3),
+        RGBColor(3, 1, 200),
+        RGBColor(120, 1, 120),
+        RGBColor(1, 120, 120),
+        RGBColor(120, 120, 1),
+    ];
+
+    #[test]
+    fn the_embedded_font_is_registered_and_draws_text() {
+        // No file is read: the font is in the program.
+        assert!(font_available());
+        let size = ("sans-serif", 20).into_font().box_size("Wall map").unwrap();
+        assert!(size.0 > 40 && size.1 > 10, "{size:?}");
+        // A figure's title is drawn in dark pixels above the plot.
+        let mut figure = Figure::new("A title in the embedded font", 400);
+        figure.segment(Vector2::zeros(), Vector2::new(1.0, 1.0), palette::WALL, 1);
+        let (pixels, (width, _), drawn) = render_rgb(&figure);
+        let title_rows = &pixels[..(drawn.plot.1.max(0) as usize * width as usize * 3)];
+        let dark = title_rows
+            .chunks(3)
+            .filter(|p| p.iter().all(|&c| c < 80))
+            .count();
+        assert!(dark > 100, "{dark} dark pixels in the title band");
+    }
+
+    #[test]
+    fn legends_never_cover_the_plot() {
+        // A map whose data fill the whole plot, and six legend lines (two rows).
+        let mut figure = Figure::new("full", 800);
+        let mut points = Vec::new();
+        for i in 0..40 {
+            for j in 0..40 {
+                points.push(Vector2::new(f64::from(i), f64::from(j)));
+            }
+        }
+        figure.dots(points, palette::POINTS, 6);
+        for (k, colour) in KEYS.iter().enumerate() {
+            figure.legend(format!("legend line number {k} with some words"), *colour);
+        }
+        let chart = LineChart {
+            title: "chart".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            series: KEYS
+                .iter()
+                .enumerate()
+                .map(|(k, colour)| Series {
+                    label: format!("series {k}"),
+                    colour: *colour,
+                    points: vec![(0.0, 1.0), (1.0, 10.0)],
+                })
+                .collect(),
+            band: None,
+        };
+        let comparison = TrajectoryComparison {
+            title: "comparison".into(),
+            ground_truth: vec![Vector2::zeros(), Vector2::new(3.0, 1.0)],
+            estimate: vec![Vector2::zeros(), Vector2::new(3.0, 1.2)],
+            errors: vec![(0.0, 0.0), (1.0, 0.2)],
+            labels: ["a".into(), "b".into(), "c".into()],
+        };
+        let rendered = [
+            ("figure", render_rgb(&figure), 6),
+            ("line chart", render_rgb(&chart), 6),
+            ("comparison", render_rgb(&comparison), 3),
+        ];
+        for (name, (pixels, size, drawn), entries) in rendered {
+            assert_eq!(drawn.legend.len(), entries, "{name}");
+            for entry in &drawn.legend {
+                assert!(
+                    !overlaps(*entry, drawn.plot),
+                    "{name}: {entry:?} {:?}",
+                    drawn.plot
+                );
+                assert!(
+                    entry.0 >= 0 && entry.2 <= size.0 as i32,
+                    "{name}: {entry:?}"
+                );
+                assert!(
+                    entry.1 >= 0 && entry.3 <= size.1 as i32,
+                    "{name}: {entry:?}"
+                );
+            }
+            if name != "comparison" {
+                // The legend swatches are drawn, and none of their pixels is on the plot.
+                for colour in KEYS {
+                    let (inside, outside) = count_colour(&pixels, size, colour, drawn.plot);
+                    assert!(outside >= 100, "{name}: {outside}");
+                    if name == "figure" {
+                        assert_eq!(inside, 0, "{name}");
+                    }
+                }
+            }
+        }
+        // The figure's legend takes two rows below the plot.
+        let (_, _, drawn) = render_rgb(&figure);
+        let rows: std::collections::BTreeSet<i32> = drawn.legend.iter().map(|r| r.1).collect();
+        assert!(rows.len() >= 2, "{rows:?}");
+        assert!(rows.iter().all(|&y| y >= drawn.plot.3), "{rows:?}");
+    }
 
     #[test]
     fn log_axes_always_have_several_labels() {

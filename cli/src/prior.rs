@@ -44,7 +44,13 @@ pub struct PriorArgs {
     #[arg(long, default_value_t = 3)]
     pub outliers: usize,
     /// Keep only beams between these bearings (rad), e.g. `--fov=-1.57,1.57`.
-    #[arg(long, value_delimiter = ',', num_args = 2, allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        num_args = 2,
+        allow_hyphen_values = true,
+        value_names = ["MIN", "MAX"]
+    )]
     pub fov: Option<Vec<f64>>,
     /// Compute the degrees of freedom and the posterior covariance.
     #[arg(long)]

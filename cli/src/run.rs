@@ -29,8 +29,8 @@ use crate::progress::Progress;
     any moment, --out holds the previous complete set or the new one."
 )]
 pub struct RunArgs {
-    /// Configuration file (TOML; every table and key is optional, see the README and
-    /// `slam_runtime::Config`).
+    /// Configuration file (TOML). Every table and key is optional: `slam config print
+    /// [CONFIG]` shows them all with the values a run uses; the README explains them.
     pub config: Option<PathBuf>,
     /// Data: sim (the built-in world), world:FILE, carmen:FILE, victoria-park:DIR,
     /// mrclam:DIR or mrclam:DIR:ROBOT, rb2d:FILE. Overrides the config's `[data] spec`.

@@ -36,8 +36,25 @@
 //! `odom_*` fields. Their `ODOM` lines are close to those corrected poses too, so the motion
 //! increments of these logs are not raw odometry.
 //!
-//! **Times are line numbers** ([`Clock::Sequence`]): the timestamps of these logs are often
-//! zero, low-precision or wrapping, so an event's time is the 1-based number of its line.
+//! **Times are the logger timestamps** ([`Clock::Seconds`]): the last field of each line, so
+//! that outputs can be paired by time with other tools' results on the same log. Logs are
+//! not always clean, and events must stay in time order:
+//!
+//! - An `ODOM` line stamped more than [`STAMP_OUTLIER_S`] before the latest stamp read is out
+//!   of order (the Radish "corrected" logs follow each scan with an `ODOM` line of the
+//!   corrected pose stamped 0 or with a garbage value): its motion takes the time of the
+//!   record after it.
+//! - Motion between two scans never takes a time after the next scan's stamp, nor before the
+//!   time already written (odometry stamps jitter by up to a second in the Intel log).
+//! - A scan stamped before the time already written takes that time.
+//!
+//! Each of these repairs is counted in a warning at the end of the file. A log whose stamps
+//! cannot order its scans is read with **line numbers as times** ([`Clock::Sequence`]), with a
+//! warning that says why: all stamps equal (all zero), a scan stamped more than
+//! [`STAMP_OUTLIER_S`] before the scan before it (a clock that wraps or jumps back), or more
+//! than [`MAX_LATE_SCANS`] of the scans stamped at or before the scan before them (too few
+//! printed digits, e.g. `1.01893e+09`). [`stream_carmen`] reads the file once up front to
+//! decide.
 //!
 //! [`carmen_text`] and [`write_carmen`] write the scans and the dead-reckoned odometry of a
 //! [`Dataset`] as `ROBOTLASER1` and `ODOM` lines that this reader reads back.
@@ -95,6 +112,16 @@ pub const UNIT_SCANS: usize = 20;
 /// it, the readings are taken to be in centimetres or millimetres (an error).
 pub const MAX_PLAUSIBLE_MEDIAN_M: f64 = 100.0;
 
+/// A record stamped more than this before the latest stamp read is out of order, s.
+pub const STAMP_OUTLIER_S: f64 = 1.0;
+
+/// The largest fraction of a log's scans that may be stamped at or before the scan before
+/// them for its stamps to be used as times.
+pub const MAX_LATE_SCANS: f64 = 0.01;
+
+/// At most this many motion events wait for their times (see [`Times::release`]).
+const MAX_HELD: usize = 4096;
+
 /// The key under which lines whose first word is not a message name are counted.
 const NOT_A_MESSAGE: &str = "(not a CARMEN message)";
 
@@ -114,12 +141,19 @@ enum Record {
     Odometry(Pose2),
 }
 
+/// A record and its logger timestamp.
+struct Stamped {
+    record: Record,
+    stamp: f64,
+}
+
 /// Reads a CARMEN log, plain or gzip-compressed (detected by its magic bytes).
 ///
 /// Each laser line gives an [`Event::Scan`] followed by an [`Event::GroundTruth`] of kind
 /// [`TruthKind::Reference`] with the line's robot pose; each `ODOM` line after the first gives
 /// an [`Event::Motion`] with the [`PoseIncrement`] from the previous `ODOM` pose. Event times
-/// are line numbers. Known lines with the wrong field count or with non-numeric or non-finite
+/// are the logger timestamps, repaired or replaced by line numbers as the [module](self)
+/// documentation says. Known lines with the wrong field count or with non-numeric or non-finite
 /// numbers are errors naming `file:line`. This is [`stream_carmen`] collected.
 ///
 /// ```
@@ -134,7 +168,7 @@ enum Record {
 /// let counts = data.counts();
 /// assert_eq!((counts.scans, counts.ground_truth, counts.motion), (1, 1, 1));
 /// assert_eq!(data.skipped["#"], 1);
-/// assert_eq!(data.events[0].time, 3.0); // the FLASER line
+/// assert_eq!(data.events[0].time, 1.5); // the FLASER line's logger timestamp
 /// ```
 pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<Dataset> {
     stream_carmen(path, options)?.into_dataset()
@@ -142,6 +176,7 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<Dataset> {
 
 /// Reads a CARMEN log one line at a time: the events of [`read_carmen`], in the same order.
 ///
+/// The file is read once up front for its logger timestamps (are they usable as times?).
 /// Bad options and a missing or unreadable file are errors of this call; a malformed line is
 /// an `Err` item when the stream reaches it. When neither the options nor a laser line give
 /// the maximum range, the first such line makes the stream read the whole file once more,
@@ -154,26 +189,37 @@ pub fn read_carmen(path: &Path, options: &CarmenOptions) -> Result<Dataset> {
 /// std::fs::write(&path, "FLASER 3 1.0 2.0 5.0 0.1 0 0 0.1 0 0 1.5 host 1.5\n\
 ///     ODOM 0 0 0 0 0 0 x host 1.0\n").unwrap();
 /// let mut stream = stream_carmen(&path, &CarmenOptions::default()).unwrap();
-/// assert_eq!(stream.next().unwrap().unwrap().time, 1.0); // the scan
-/// assert_eq!(stream.next().unwrap().unwrap().time, 1.0); // its reference pose
+/// assert_eq!(stream.next().unwrap().unwrap().time, 1.5); // the scan
+/// assert_eq!(stream.next().unwrap().unwrap().time, 1.5); // its reference pose
 /// let e = stream.next().unwrap().unwrap_err().to_string();
 /// assert!(e.ends_with("carmen-stream-doc.log:2:18: field 8 (ipc_timestamp): expected a number, got `x`"), "{e}");
 /// assert!(stream.next().is_none());
 /// ```
 pub fn stream_carmen(path: &Path, options: &CarmenOptions) -> Result<EventStream> {
     check_options(options)?;
-    let lines = Lines::open(path)?;
     let name = path
         .file_name()
         .unwrap_or(path.as_os_str())
         .to_string_lossy()
         .into_owned();
+    let skipped = SkipCounter::default();
+    let clock = match survey_stamps(path)? {
+        Ok(()) => Clock::Seconds,
+        Err(reason) => {
+            skipped.warn(format!(
+                "{}: the logger timestamps cannot order the events ({reason}): event times \
+                 are line numbers",
+                path.display()
+            ));
+            Clock::Sequence
+        }
+    };
+    let lines = Lines::open(path)?;
     let info = DatasetInfo {
         name,
-        clock: Clock::Sequence,
+        clock,
         landmarks: Vec::new(),
     };
-    let skipped = SkipCounter::default();
     let reader = CarmenReader {
         lines,
         options: options.clone(),
@@ -182,6 +228,8 @@ pub fn stream_carmen(path: &Path, options: &CarmenOptions) -> Result<EventStream
         previous_odometry: None,
         records: 0,
         scans: ScanEvidence::default(),
+        times: Times::default(),
+        clock,
     };
     Ok(EventStream::new(info, Pump::new(reader)).with_skipped(skipped))
 }
@@ -198,19 +246,43 @@ struct CarmenReader {
     records: usize,
     /// The unit evidence of the first scans.
     scans: ScanEvidence,
+    /// Logger timestamps into event times.
+    times: Times,
+    /// Whether the times are the logger timestamps or line numbers.
+    clock: Clock,
 }
 
 impl Step for CarmenReader {
     fn step(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<bool> {
         let Some(next) = self.lines.next() else {
+            self.times.flush(f64::INFINITY, out);
             return self.end().map(|()| false);
         };
-        let (line, content) = next?;
+        let read = next.and_then(|(line, content)| self.read_line(line, &content, out));
+        if read.is_err() {
+            // The events of the lines before the error come first.
+            self.times.flush(f64::INFINITY, out);
+        }
+        read.map(|()| true)
+    }
+}
+
+impl CarmenReader {
+    /// Reads one line into events.
+    fn read_line(
+        &mut self,
+        line: usize,
+        content: &str,
+        out: &mut VecDeque<TimedEvent>,
+    ) -> Result<()> {
         let path = self.lines.path();
-        let fields = Fields::whitespace(path, line, &content);
-        let time = line as f64;
+        let fields = Fields::whitespace(path, line, content);
+        let sequence = self.clock == Clock::Sequence;
         match parse_line(&fields, &self.options)? {
-            Some(Record::Laser(laser)) => {
+            Some(Stamped {
+                record: Record::Laser(laser),
+                stamp,
+            }) => {
                 self.records += 1;
                 let max_range = match self.options.max_range.or(laser.max_range) {
                     Some(max_range) => max_range,
@@ -223,6 +295,11 @@ impl Step for CarmenReader {
                 let (scan, robot_from_sensor) = to_scan(laser, self.options.min_range, max_range)
                     .map_err(|e| at(path, line, e))?;
                 self.check_scan(&scan, line)?;
+                let time = if sequence {
+                    line as f64
+                } else {
+                    self.times.scan(stamp, out)
+                };
                 out.push_back(TimedEvent {
                     time,
                     event: Event::Scan {
@@ -238,28 +315,38 @@ impl Step for CarmenReader {
                     },
                 });
             }
-            Some(Record::Odometry(pose)) => {
+            Some(Stamped {
+                record: Record::Odometry(pose),
+                stamp,
+            }) => {
                 self.records += 1;
-                if let Some(previous) = self.previous_odometry {
-                    let step =
+                let step = match self.previous_odometry {
+                    Some(previous) => Some(
                         PoseIncrement::between(&previous, &pose, &self.options.odometry_noise)
-                            .map_err(|e| at(path, line, e))?;
-                    out.push_back(TimedEvent {
-                        time,
-                        event: Event::Motion(Box::new(step)),
-                    });
-                }
+                            .map_err(|e| at(path, line, e))?,
+                    ),
+                    None => None,
+                };
                 self.previous_odometry = Some(pose);
+                let event = step.map(|step| Event::Motion(Box::new(step)));
+                if sequence {
+                    if let Some(event) = event {
+                        out.push_back(TimedEvent {
+                            time: line as f64,
+                            event,
+                        });
+                    }
+                } else {
+                    self.times.odometry(stamp, event, out);
+                }
             }
             None if content.trim_start().starts_with('#') => self.skipped.count("#"),
             None if fields.len() > 0 => self.skipped.count(message_key(fields.first())),
             None => {}
         }
-        Ok(true)
+        Ok(())
     }
-}
 
-impl CarmenReader {
     /// Counts the impossible readings of a scan and gathers the unit evidence of the first
     /// scans; an error when the readings look like centimetres.
     fn check_scan(&mut self, scan: &LaserScan, line: usize) -> Result<()> {
@@ -281,6 +368,9 @@ impl CarmenReader {
     fn end(&mut self) -> Result<()> {
         let path = self.lines.path();
         let line = self.lines.number();
+        if let Some(warning) = self.times.repairs() {
+            self.skipped.warn(format!("{}: {warning}", path.display()));
+        }
         self.scans.decide(path, line, &self.skipped)?;
         if self.records > 0 {
             return Ok(());
@@ -450,7 +540,7 @@ fn to_scan(laser: LaserLine, min_range: f64, max_range: f64) -> Result<(LaserSca
 }
 
 /// A known line as a record; `None` for a line to skip.
-fn parse_line(fields: &Fields, options: &CarmenOptions) -> Result<Option<Record>> {
+fn parse_line(fields: &Fields, options: &CarmenOptions) -> Result<Option<Stamped>> {
     let record = match fields.first() {
         "FLASER" => Record::Laser(parse_old_laser(fields, options.front_laser)?),
         "RLASER" => Record::Laser(parse_old_laser(fields, options.rear_laser)?),
@@ -458,7 +548,217 @@ fn parse_line(fields: &Fields, options: &CarmenOptions) -> Result<Option<Record>
         "ODOM" => Record::Odometry(parse_odometry(fields)?),
         _ => return Ok(None),
     };
-    Ok(Some(record))
+    // Every record ends with its logger timestamp (checked by the record's parser).
+    let stamp = fields.f64(fields.len() - 1, "logger_timestamp")?;
+    Ok(Some(Stamped { record, stamp }))
+}
+
+/// The logger timestamp of a record line (the last field), or `None` for other lines and
+/// for stamps that do not parse (the reading pass reports those).
+fn line_stamp(content: &str) -> Option<(bool, f64)> {
+    let mut fields = content.split_whitespace();
+    let scan = match fields.next()? {
+        "FLASER" | "RLASER" | "ROBOTLASER1" => true,
+        "ODOM" => false,
+        _ => return None,
+    };
+    let stamp: f64 = fields.next_back()?.parse().ok()?;
+    stamp.is_finite().then_some((scan, stamp))
+}
+
+/// Reads the logger timestamps of the whole file: `Ok(Err(reason))` when they cannot order
+/// the events (see the [module](self) documentation). An I/O error is an error; a line that
+/// cannot be read ends the survey (the reading pass reports it where it is).
+fn survey_stamps(path: &Path) -> Result<std::result::Result<(), String>> {
+    let mut distinct: Option<(f64, bool)> = None;
+    let (mut scans, mut late) = (0usize, 0usize);
+    let mut previous_scan: Option<f64> = None;
+    let mut jump: Option<(usize, f64, f64)> = None;
+    for next in Lines::open(path)? {
+        let Ok((line, content)) = next else { break };
+        let Some((scan, stamp)) = line_stamp(&content) else {
+            continue;
+        };
+        distinct = match distinct {
+            None => Some((stamp, false)),
+            Some((first, seen)) => Some((first, seen || stamp != first)),
+        };
+        if !scan {
+            continue;
+        }
+        scans += 1;
+        if let Some(before) = previous_scan {
+            if stamp < before - STAMP_OUTLIER_S && jump.is_none() {
+                jump = Some((line, before, stamp));
+            }
+            if stamp <= before {
+                late += 1;
+            }
+        }
+        previous_scan = Some(stamp);
+    }
+    if let Some((first, false)) = distinct {
+        return Ok(Err(format!("every record is stamped {first}")));
+    }
+    if let Some((line, before, stamp)) = jump {
+        return Ok(Err(format!(
+            "the scan of line {line} is stamped {stamp}, {:.3} s before the scan before it",
+            before - stamp
+        )));
+    }
+    if scans > 1 && late as f64 > MAX_LATE_SCANS * (scans - 1) as f64 {
+        return Ok(Err(format!(
+            "{late} of {scans} scans are stamped at or before the scan before them: too few \
+             digits?"
+        )));
+    }
+    Ok(Ok(()))
+}
+
+/// A motion event waiting for its time.
+struct Held {
+    stamp: f64,
+    /// Stamped out of order: takes the time of the record after it.
+    out_of_order: bool,
+    event: Event,
+}
+
+/// Logger timestamps into event times that never go back (see the [module](self)
+/// documentation): motion events wait for the next scan, which bounds their times.
+#[derive(Default)]
+struct Times {
+    held: Vec<Held>,
+    /// The time of the last event written.
+    last: Option<f64>,
+    /// The latest stamp of a record in order.
+    reached: Option<f64>,
+    /// Scans stamped before the time already written, and by how much at most.
+    late_scans: usize,
+    latest_scan: f64,
+    /// Motion events stamped out of order, and those whose time is not their stamp.
+    out_of_order: usize,
+    moved: usize,
+}
+
+impl Times {
+    /// The time of a scan stamped `stamp`; writes the motion before it to `out` first.
+    fn scan(&mut self, stamp: f64, out: &mut VecDeque<TimedEvent>) -> f64 {
+        self.flush(stamp, out);
+        let time = match self.last {
+            Some(last) if stamp < last => {
+                self.late_scans += 1;
+                self.latest_scan = self.latest_scan.max(last - stamp);
+                last
+            }
+            _ => stamp,
+        };
+        self.last = Some(time);
+        self.reached = Some(self.reached.map_or(stamp, |r| r.max(stamp)));
+        time
+    }
+
+    /// An `ODOM` record stamped `stamp` and its motion event (none for the first).
+    fn odometry(&mut self, stamp: f64, event: Option<Event>, out: &mut VecDeque<TimedEvent>) {
+        let out_of_order = self.reached.is_some_and(|r| stamp < r - STAMP_OUTLIER_S);
+        if !out_of_order {
+            self.reached = Some(self.reached.map_or(stamp, |r| r.max(stamp)));
+        }
+        if let Some(event) = event {
+            self.held.push(Held {
+                stamp,
+                out_of_order,
+                event,
+            });
+        }
+        self.release(out);
+    }
+
+    /// The times of the waiting motion events with nothing after them but `bound`: each its
+    /// stamp, bounded by the times after it; one stamped out of order takes the time after it.
+    fn provisional(&self, bound: f64) -> Vec<f64> {
+        let mut after = bound;
+        let mut times = vec![0.0; self.held.len()];
+        for (time, held) in times.iter_mut().zip(&self.held).rev() {
+            *time = if held.out_of_order {
+                after
+            } else {
+                held.stamp.min(after)
+            };
+            after = *time;
+        }
+        times
+    }
+
+    /// Writes the waiting motion events whose times no later record can lower (records in
+    /// order are stamped at most [`STAMP_OUTLIER_S`] before the latest stamp), or all of them
+    /// when too many wait: a log of odometry alone streams too.
+    fn release(&mut self, out: &mut VecDeque<TimedEvent>) {
+        let Some(reached) = self.reached else { return };
+        let times = self.provisional(f64::INFINITY);
+        let safe = if self.held.len() >= MAX_HELD {
+            times.len()
+        } else {
+            times.partition_point(|&t| t <= reached - STAMP_OUTLIER_S)
+        };
+        self.write(safe, &times, out);
+    }
+
+    /// Writes the waiting motion events to `out`, none after `bound` (the next scan's stamp,
+    /// or infinity at the end).
+    fn flush(&mut self, bound: f64, out: &mut VecDeque<TimedEvent>) {
+        let times = self.provisional(bound);
+        self.write(times.len(), &times, out);
+    }
+
+    /// Writes the first `n` waiting motion events with `times`, never before the time
+    /// already written.
+    fn write(&mut self, n: usize, times: &[f64], out: &mut VecDeque<TimedEvent>) {
+        for (held, &time) in self.held.drain(..n).zip(times) {
+            // Without a record after it, an event stamped out of order takes the time before.
+            let time = match (self.last, time.is_finite()) {
+                (Some(last), true) => time.max(last),
+                (Some(last), false) => last,
+                (None, true) => time,
+                (None, false) => held.stamp,
+            };
+            if held.out_of_order {
+                self.out_of_order += 1;
+            } else if time != held.stamp {
+                self.moved += 1;
+            }
+            self.last = Some(time);
+            out.push_back(TimedEvent {
+                time,
+                event: held.event,
+            });
+        }
+    }
+
+    /// What the repairs changed, for a warning; `None` when every time is its stamp.
+    fn repairs(&self) -> Option<String> {
+        let mut parts = Vec::new();
+        if self.late_scans > 0 {
+            parts.push(format!(
+                "{} scans stamped up to {:.3} s before the time already reached took that time",
+                self.late_scans, self.latest_scan
+            ));
+        }
+        if self.out_of_order > 0 {
+            parts.push(format!(
+                "{} ODOM lines stamped more than {STAMP_OUTLIER_S} s before the latest stamp \
+                 (e.g. 0) took the time of the record after them",
+                self.out_of_order
+            ));
+        }
+        if self.moved > 0 {
+            parts.push(format!(
+                "{} ODOM lines stamped out of order with their neighbours took a neighbour's \
+                 time",
+                self.moved
+            ));
+        }
+        (!parts.is_empty()).then(|| format!("logger timestamps repaired: {}", parts.join("; ")))
+    }
 }
 
 /// The beam spacing of an `FLASER`/`RLASER` line with `n` beams over 180 degrees.
@@ -496,7 +796,7 @@ fn ranges(fields: &Fields, start: usize, n: usize) -> Result<Vec<f64>> {
 }
 
 /// The trailing `ipc_timestamp ipc_hostname logger_timestamp`, starting at `index`: checked
-/// to be numeric, not used.
+/// to be numeric (the logger timestamp is the event time, see [`parse_line`]).
 fn check_timestamps(fields: &Fields, index: usize) -> Result<()> {
     fields.f64(index, "ipc_timestamp")?;
     fields.f64(index + 2, "logger_timestamp")?;
@@ -750,6 +1050,154 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("tilted"), "{e}");
+    }
+
+    /// `(time, kind)` of every event: `M` motion, `S` scan (its reference pose dropped).
+    fn timeline(data: &Dataset) -> Vec<(f64, char)> {
+        data.events
+            .iter()
+            .filter_map(|e| match e.event {
+                Event::Motion(_) => Some((e.time, 'M')),
+                Event::Scan { .. } => Some((e.time, 'S')),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn odom(x: f64, stamp: &str) -> String {
+        format!("ODOM {x} 0 0 0 0 0 {stamp} h {stamp}\n")
+    }
+
+    fn flaser(x: f64, stamp: &str) -> String {
+        format!("FLASER 3 1 2 3 {x} 0 0 {x} 0 0 {stamp} h {stamp}\n")
+    }
+
+    #[test]
+    fn times_are_logger_timestamps_repaired_where_out_of_order() {
+        // The layout of the Radish "corrected" logs: each scan follows an ODOM line with its
+        // stamp and is followed by an ODOM line of the corrected pose stamped 0; odometry
+        // stamps jitter (10.7 after 10.9).
+        let text = [
+            odom(0.0, "10.0"),
+            odom(0.1, "10.5"),
+            flaser(0.1, "10.5"),
+            odom(0.1, "0"),
+            "NEFF 3\n".to_string(),
+            odom(0.2, "10.9"),
+            odom(0.3, "10.7"),
+            odom(0.4, "11.2"),
+            flaser(0.4, "11.2"),
+            odom(0.4, "3.5"),
+        ]
+        .concat();
+        let data = read("stamps", &text, &CarmenOptions::default()).unwrap();
+        assert_eq!(data.clock, Clock::Seconds);
+        assert_eq!(
+            timeline(&data),
+            [
+                (10.5, 'M'),
+                (10.5, 'S'),
+                (10.7, 'M'), // stamped 0: the time of the record after it
+                (10.7, 'M'), // 10.9, before 10.7: bounded by the record after it
+                (10.7, 'M'),
+                (11.2, 'M'),
+                (11.2, 'S'),
+                (11.2, 'M'), // stamped 3.5 at the end: the time before it
+            ]
+        );
+        assert_eq!(data.warnings.len(), 1, "{:?}", data.warnings);
+        let warning = &data.warnings[0];
+        assert!(
+            warning.contains("stamps.log: logger timestamps repaired"),
+            "{warning}"
+        );
+        assert!(
+            warning.contains("2 ODOM lines stamped more than 1 s before"),
+            "{warning}"
+        );
+        assert!(
+            warning.contains("1 ODOM lines stamped out of order"),
+            "{warning}"
+        );
+        // A scan stamped before the scan before it takes that scan's time; more than 1 % of
+        // such scans and the stamps are refused.
+        let late = [flaser(0.0, "5.0"), odom(0.0, "5.6"), flaser(0.0, "4.5")].concat();
+        let data = read("late", &late, &CarmenOptions::default()).unwrap();
+        assert_eq!(data.clock, Clock::Sequence);
+        let mut many: Vec<String> = (0..200)
+            .map(|k| flaser(0.0, &format!("{}", 5.0 + f64::from(k))))
+            .collect();
+        many[100] = flaser(0.0, "103.3");
+        let data = read("late-one", &many.concat(), &CarmenOptions::default()).unwrap();
+        assert_eq!(data.clock, Clock::Seconds);
+        let scans: Vec<f64> = timeline(&data)
+            .into_iter()
+            .filter(|e| e.1 == 'S')
+            .map(|e| e.0)
+            .collect();
+        assert_eq!((scans[99], scans[100], scans[101]), (104.0, 104.0, 106.0));
+        assert!(
+            data.warnings[0].contains("1 scans stamped up to 0.700 s before"),
+            "{:?}",
+            data.warnings
+        );
+    }
+
+    #[test]
+    fn broken_stamps_give_line_numbers_with_a_warning() {
+        let cases = [
+            // All zero.
+            (
+                [
+                    odom(0.0, "0"),
+                    flaser(0.0, "0"),
+                    odom(0.1, "0"),
+                    flaser(0.1, "0"),
+                ]
+                .concat(),
+                "every record is stamped 0",
+            ),
+            // A clock that wraps.
+            (
+                [flaser(0.0, "4000"), odom(0.0, "4001"), flaser(0.1, "2.5")].concat(),
+                "the scan of line 3 is stamped 2.5, 3997.500 s before the scan before it",
+            ),
+            // Too few digits to order the scans.
+            (
+                (0..10)
+                    .map(|k| {
+                        flaser(
+                            f64::from(k),
+                            if k < 8 { "1.01893e+09" } else { "1.01894e+09" },
+                        )
+                    })
+                    .collect::<String>(),
+                "8 of 10 scans are stamped at or before the scan before them",
+            ),
+        ];
+        for (k, (text, reason)) in cases.iter().enumerate() {
+            let data = read(&format!("broken{k}"), text, &CarmenOptions::default()).unwrap();
+            assert_eq!(data.clock, Clock::Sequence, "{reason}");
+            let times: Vec<f64> = timeline(&data).iter().map(|e| e.0).collect();
+            let lines: Vec<f64> = data
+                .events
+                .iter()
+                .filter(|e| !matches!(e.event, Event::GroundTruth { .. }))
+                .map(|e| e.time)
+                .collect();
+            assert_eq!(times, lines);
+            assert!(
+                times.iter().all(|t| t.fract() == 0.0 && *t >= 1.0),
+                "{times:?}"
+            );
+            assert_eq!(data.warnings.len(), 1, "{:?}", data.warnings);
+            let warning = &data.warnings[0];
+            assert!(warning.contains(reason), "{warning} vs {reason}");
+            assert!(
+                warning.ends_with("event times are line numbers"),
+                "{warning}"
+            );
+        }
     }
 
     #[test]

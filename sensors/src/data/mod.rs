@@ -4,7 +4,7 @@
 //!
 //! | reader | data | clock | events |
 //! |---|---|---|---|
-//! | [`stream_carmen`], [`read_carmen`] | CARMEN logs (plain or gzip), e.g. the Radish "corrected" logs | line numbers ([`Clock::Sequence`]) | scans, reference poses, pose increments |
+//! | [`stream_carmen`], [`read_carmen`] | CARMEN logs (plain or gzip), e.g. the Radish "corrected" logs | logger timestamps, s (line numbers, [`Clock::Sequence`], where they cannot order the events) | scans, reference poses, pose increments |
 //! | [`stream_victoria_park`], [`read_victoria_park`] | Victoria Park (`converted/` CSV files) | seconds | Ackermann motion, pole observations, GPS |
 //! | [`stream_mrclam`], [`read_mrclam`] | UTIAS MR.CLAM dataset 1, one robot | seconds | unicycle motion, range-bearing observations, landmark map |
 //! | [`read_tum`] | TUM trajectories (`t x y z qx qy qz qw`) | seconds | stamped poses (not an event stream) |

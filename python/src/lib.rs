@@ -1,6 +1,6 @@
-//! The Python module `mspace_slam`: [`run`] runs a configuration as `slam run` does (the same
-//! library function, [`slam_cli::compute_run`]) and returns the results as NumPy arrays and
-//! dicts instead of files.
+//! The Python module `mspace_slam`: its function `run` runs a configuration as `slam run`
+//! does (the same library function, [`slam_cli::compute_run`]) and returns the results as
+//! NumPy arrays and dicts instead of files.
 //!
 //! Built by maturin (`pip install ./python`, see python/README.md); tested by pytest
 //! (python/tests).
@@ -10,9 +10,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use numpy::{PyArray1, PyArrayMethods};
-use pyo3::exceptions::{
-    PyFileNotFoundError, PyOSError, PyRuntimeError, PyTypeError, PyValueError,
-};
+use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 

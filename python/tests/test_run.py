@@ -7,7 +7,10 @@ default target/debug/slam, built when missing).
 import json
 import os
 import pathlib
+import signal
 import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -148,3 +151,19 @@ def test_the_module_and_run_are_documented():
     assert "run(" in mspace_slam.__doc__
     assert "ValueError" in mspace_slam.run.__doc__
     assert mspace_slam.__version__
+
+
+def test_ctrl_c_stops_a_run_with_keyboard_interrupt():
+    # The whole default world takes tens of seconds; Ctrl-C ends it at the next event.
+    script = "import mspace_slam, sys; print('go', flush=True); mspace_slam.run()"
+    child = subprocess.Popen(
+        [sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    assert child.stdout.readline().strip() == "go"
+    time.sleep(1.0)
+    sent = time.monotonic()
+    child.send_signal(signal.SIGINT)
+    _, stderr = child.communicate(timeout=60)
+    assert time.monotonic() - sent < 5.0
+    assert child.returncode != 0
+    assert "KeyboardInterrupt" in stderr, stderr

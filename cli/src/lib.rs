@@ -35,7 +35,11 @@ use std::process::ExitCode;
 use clap::{CommandFactory, Parser, Subcommand};
 
 pub use error::{CliError, Result};
-pub use run::{EXIT_DIVERGED, EXIT_INTERRUPTED, RunArgs, RunStatus, run_config, run_config_until};
+pub use outputs::map_json;
+pub use run::{
+    EXIT_DIVERGED, EXIT_INTERRUPTED, RunArgs, RunResults, RunStatus, compute_run, run_config,
+    run_config_until, with_overrides,
+};
 
 /// Links the example crate, whose `typetag` registrations the command offers by name.
 use slam_examples as _;

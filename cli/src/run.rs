@@ -60,23 +60,50 @@ pub struct RunArgs {
 
 /// The configuration of `slam run` with its arguments applied.
 pub fn config_of(args: &RunArgs) -> Result<Config> {
-    let mut config = match &args.config {
+    let config = match &args.config {
         Some(path) => Config::from_file(path)?,
         None => Config::default(),
     };
-    if let Some(data) = &args.data {
-        config.data.spec = data.clone();
-    }
+    let mut config = with_overrides(config, args.data.as_deref(), args.seed);
     if let Some(out) = &args.out {
         config.output.dir = out.clone();
-    }
-    if let Some(seed) = args.seed {
-        config.data.seed = seed;
     }
     config.output.grid |= args.grid;
     config.output.g2o |= args.g2o;
     config.output.mcap |= args.mcap;
     Ok(config)
+}
+
+/// `config` with the data spec and the seed replaced where given (what `--data` and `--seed`
+/// of `slam run` do).
+pub fn with_overrides(mut config: Config, data: Option<&str>, seed: Option<u64>) -> Config {
+    if let Some(data) = data {
+        config.data.spec = data.to_string();
+    }
+    if let Some(seed) = seed {
+        config.data.seed = seed;
+    }
+    config
+}
+
+/// A run in memory: what `slam run` computes before it writes any file.
+pub struct RunResults {
+    /// The run (estimates, truth, the estimator with its map, stages' outputs).
+    pub output: RunOutput,
+    /// Its metrics (`metrics.json`).
+    pub metrics: RunMetrics,
+}
+
+/// The computation of `slam run` without its files: runs `config`, with `observer` watching,
+/// until the end of the data or until `stop` is set, and computes the run's metrics.
+pub fn compute_run(
+    config: &Config,
+    observer: &mut dyn Observer,
+    stop: &AtomicBool,
+) -> Result<RunResults> {
+    let output = slam_runtime::run_until(config, observer, stop)?;
+    let metrics = RunMetrics::compute(&output, config)?;
+    Ok(RunResults { output, metrics })
 }
 
 /// How a run ended: the exit code of `slam run`.
@@ -171,16 +198,15 @@ fn run_inner(
     let set = OutputSet::prepare(&config.output.dir)?;
     let mut progress = Progress::new(quiet);
     let mut streams = Streams::new(set.path(), config)?;
-    let output = {
+    let RunResults { output, metrics } = {
         let mut observers: Vec<&mut dyn Observer> = vec![&mut progress];
         streams.add_to(&mut observers);
-        slam_runtime::run_until(config, &mut observers, stop)?
+        compute_run(config, &mut observers, stop)?
     };
     progress.finish();
     for warning in &output.input.warnings {
         eprintln!("slam: warning: {warning}");
     }
-    let metrics = RunMetrics::compute(&output, config)?;
     write_outputs(set.path(), config, &output, &metrics)?;
     let notes = streams.finish(set.path(), &output, grid_required)?;
     set.commit()?;

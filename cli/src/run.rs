@@ -131,6 +131,11 @@ pub fn run_config_until(
     for warning in &output.input.warnings {
         eprintln!("slam: warning: {warning}");
     }
+    if !quiet {
+        for note in &output.input.notes {
+            eprintln!("slam: note: {note}");
+        }
+    }
     let metrics = RunMetrics::compute(&output, config)?;
     write_outputs(set.path(), config, &output, &metrics)?;
     set.commit()?;

@@ -361,7 +361,7 @@ mod tests {
     fn mcap_topics_come_from_the_config_and_unknown_keys_are_errors() {
         let config = crate::Config::from_toml(
             "[data]\nspec = \"mcap:run.mcap\"\n[data.mcap]\nreference_topic = \"/truth\"\n\
-             laser_mount = [0.1, 0.0, 3.14]\n",
+             laser_mount = [0.1, 0.0, 2.5]\n",
             "t.toml",
         )
         .unwrap();
@@ -371,7 +371,7 @@ mod tests {
             ("/scan", "/odom")
         );
         assert_eq!(options.reference_topic, "/truth");
-        assert_eq!(options.laser_mount.unwrap().yaw, 3.14);
+        assert_eq!(options.laser_mount.unwrap().yaw, 2.5);
         let e = crate::Config::from_toml("[data.mcap]\nscan_topik = \"/x\"\n", "t.toml")
             .unwrap_err()
             .to_string();

@@ -484,7 +484,8 @@ mod tests {
 
     #[test]
     fn truncated_input_is_an_error_at_every_length() {
-        let messages: [(&str, Vec<u8>, fn(&[u8]) -> bool); 4] = [
+        type Decodes = fn(&[u8]) -> bool;
+        let messages: [(&str, Vec<u8>, Decodes); 4] = [
             (
                 "scan",
                 build::laser_scan(true, (1, 0), "l", [0.0, 1.0, 0.5], [0.0, 5.0], &[1.0; 3]),

@@ -1,6 +1,7 @@
 """`slam run --data mcap:FILE` on ROS 2 bags written by the standard Python writer
 (`mcap-ros2-support`) from CARMEN logs: the same trajectory as `--data carmen:FILE`."""
 
+import csv
 import gzip
 import itertools
 import math
@@ -52,17 +53,11 @@ plots = false
 
 
 def trajectory(folder: pathlib.Path) -> list[list[float]]:
-    """The rows `t x y z qx qy qz qw` of a run's trajectory.tum."""
-    rows = []
-    for line in (folder / "trajectory.tum").read_text().splitlines():
-        if line.strip() and not line.startswith("#"):
-            rows.append([float(v) for v in line.split()])
-    return rows
-
-
-def yaw(row: list[float]) -> float:
-    qz, qw = row[6], row[7]
-    return 2.0 * math.atan2(qz, qw)
+    """The rows `time x y theta` of a run's estimates.csv (all digits; trajectory.tum has 6
+    decimals, where a difference in the 16th digit can show in the 6th)."""
+    with open(folder / "estimates.csv") as f:
+        rows = list(csv.DictReader(f))
+    return [[float(r["time"]), float(r["x"]), float(r["y"]), float(r["theta"])] for r in rows]
 
 
 def line_stamps(log: pathlib.Path) -> dict[int, float]:
@@ -120,7 +115,7 @@ def assert_same_poses(carmen, mcap, tolerance):
     assert len(carmen) == len(mcap) > 10
     worst = 0.0
     for k, (a, b) in enumerate(zip(carmen, mcap)):
-        dyaw = math.remainder(yaw(a) - yaw(b), 2 * math.pi)
+        dyaw = math.remainder(a[3] - b[3], 2 * math.pi)
         error = max(abs(a[1] - b[1]), abs(a[2] - b[2]), abs(dyaw))
         assert error <= tolerance, f"step {k}: carmen {a} vs mcap {b}"
         worst = max(worst, error)

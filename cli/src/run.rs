@@ -27,8 +27,9 @@ pub struct RunArgs {
     /// Configuration file (TOML; every table and key is optional, see the README and
     /// `slam_runtime::Config`).
     pub config: Option<PathBuf>,
-    /// Data: sim (the built-in world), world:FILE, carmen:FILE, victoria-park:DIR,
-    /// mrclam:DIR or mrclam:DIR:ROBOT, rb2d:FILE. Overrides the config's `[data] spec`.
+    /// Data: sim (the built-in world), world:FILE, carmen:FILE, mcap:FILE (a ROS 2 bag),
+    /// victoria-park:DIR, mrclam:DIR or mrclam:DIR:ROBOT, rb2d:FILE. Overrides the config's
+    /// `[data] spec`.
     #[arg(long)]
     pub data: Option<String>,
     /// Output folder. Overrides the config's `[output] dir` (default `slam-out`).

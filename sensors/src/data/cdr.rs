@@ -174,7 +174,8 @@ fn header(c: &mut Cdr) -> CdrResult<Header> {
     let nanosec = c.u32("header.stamp.nanosec")?;
     let frame_id = c.string("header.frame_id")?;
     Ok(Header {
-        stamp: f64::from(sec) + f64::from(nanosec) * 1e-9,
+        // Divided (correctly rounded), so that 0.204947 s comes back as 0.204947.
+        stamp: f64::from(sec) + f64::from(nanosec) / 1e9,
         frame_id,
     })
 }

@@ -2,7 +2,7 @@
 """Converts a CARMEN log (plain or gzip) into a ROS 2 bag stored as MCAP, with the standard
 writer of `mcap-ros2-support` (zstd-compressed chunks, its default).
 
-    python interop/carmen_to_mcap.py LOG OUT.mcap [--max-lines N]
+    python interop/carmen_to_mcap.py LOG OUT.mcap [--max-lines N] [--compression zstd|lz4|none]
 
 What is written (the same events `slam run --data carmen:LOG` reads; see
 sensors/src/data/carmen.rs):
@@ -31,7 +31,10 @@ import math
 import os
 import sys
 
+from mcap.writer import CompressionType
 from mcap_ros2.writer import Writer
+
+COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 
 HEADER = """================================================================================
 MSG: std_msgs/Header
@@ -217,8 +220,9 @@ def pose(x, y, yaw):
     return {"position": {"x": x, "y": y, "z": 0.0}, "orientation": quaternion(yaw)}
 
 
-def convert(log, out, max_lines=0):
-    """Writes the bag; returns the counts of messages by topic."""
+def convert(log, out, max_lines=0, compression="zstd"):
+    """Writes the bag (chunks compressed with `compression`: zstd, lz4 or none); returns the
+    counts of messages by topic."""
     # First pass: the largest reading (the max range of FLASER lines) and the laser mounts.
     largest = 0.0
     mounts = {}
@@ -236,7 +240,7 @@ def convert(log, out, max_lines=0):
     # Written beside the output and renamed when complete: a failure leaves no partial bag.
     partial = f"{out}.partial"
     try:
-        write(log, partial, max_lines, largest, mounts, counts)
+        write(log, partial, max_lines, largest, mounts, counts, COMPRESSIONS[compression])
         os.replace(partial, out)
     finally:
         if os.path.exists(partial):
@@ -244,10 +248,10 @@ def convert(log, out, max_lines=0):
     return counts
 
 
-def write(log, out, max_lines, largest, mounts, counts):
+def write(log, out, max_lines, largest, mounts, counts, compression):
     """The second pass: writes the messages into `out`."""
     with open(out, "wb") as f:
-        writer = Writer(f)
+        writer = Writer(f, compression=compression)
         scan_schema = writer.register_msgdef("sensor_msgs/msg/LaserScan", LASER_SCAN)
         odom_schema = writer.register_msgdef("nav_msgs/msg/Odometry", ODOMETRY)
         pose_schema = writer.register_msgdef("geometry_msgs/msg/PoseStamped", POSE_STAMPED)
@@ -315,9 +319,11 @@ def main():
     parser.add_argument("out", help="the MCAP file to write")
     parser.add_argument("--max-lines", type=int, default=0,
                         help="read only the first N lines of the log (0: all)")
+    parser.add_argument("--compression", choices=sorted(COMPRESSIONS), default="zstd",
+                        help="chunk compression (default zstd, the writer's default)")
     args = parser.parse_args()
     try:
-        counts = convert(args.log, args.out, args.max_lines)
+        counts = convert(args.log, args.out, args.max_lines, args.compression)
     except (LogError, ValueError, IndexError, OSError) as e:
         sys.exit(f"carmen_to_mcap: {e}")
     print(", ".join(f"{topic}: {n}" for topic, n in counts.items() if n))

@@ -91,16 +91,17 @@ def by_stamp(carmen: list[list[float]], log: pathlib.Path) -> list[list[float]]:
     return rows
 
 
-def run_both(slam, tmp_path, log: pathlib.Path, config_text: str):
+def run_both(slam, tmp_path, log: pathlib.Path, config_text: str, compression="zstd"):
     """Converts `log` to a bag and runs both; returns the two trajectories (the CARMEN one one
     row per stamp, see `by_stamp`) and the mcap run's stderr."""
     bag = tmp_path / (log.stem + ".mcap")
-    counts = convert(str(log), str(bag))
+    counts = convert(str(log), str(bag), compression=compression)
     assert counts["/scan"] > 0 and counts["/odom"] > 0, counts
     with open(bag, "rb") as f:
-        # Written by the standard writer: zstd chunks (its default), which the reader must take.
+        # Written by the standard writer: zstd chunks by default, which the reader must take.
         summary = make_reader(f).get_summary()
-        assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
+        expected = "" if compression == "none" else compression
+        assert {c.compression for c in summary.chunk_indexes} == {expected}
     config = tmp_path / "config.toml"
     config.write_text(config_text)
     runs = {}
@@ -150,8 +151,9 @@ def intel_head(datasets, tmp_path_factory) -> pathlib.Path:
     return head
 
 
-def test_simulated_log_dead_reckoned(slam, tmp_path, simulated_log):
-    carmen, mcap, stderr = run_both(slam, tmp_path, simulated_log, DEAD_RECKONING)
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_simulated_log_dead_reckoned(slam, tmp_path, simulated_log, compression):
+    carmen, mcap, stderr = run_both(slam, tmp_path, simulated_log, DEAD_RECKONING, compression)
     assert_same_poses(carmen, mcap, 1e-9)
     assert_same_times(carmen, mcap)
     # The simulated laser's mount came from /tf_static.

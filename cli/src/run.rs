@@ -32,8 +32,9 @@ pub struct RunArgs {
     /// Configuration file (TOML). Every table and key is optional: `slam config print
     /// [CONFIG]` shows them all with the values a run uses; the README explains them.
     pub config: Option<PathBuf>,
-    /// Data: sim (the built-in world), world:FILE, carmen:FILE, victoria-park:DIR,
-    /// mrclam:DIR or mrclam:DIR:ROBOT, rb2d:FILE. Overrides the config's `[data] spec`.
+    /// Data: sim (the built-in world), world:FILE, carmen:FILE, mcap:FILE (a ROS 2 bag),
+    /// victoria-park:DIR, mrclam:DIR or mrclam:DIR:ROBOT, rb2d:FILE. Overrides the config's
+    /// `[data] spec`.
     #[arg(long)]
     pub data: Option<String>,
     /// Output folder. Overrides the config's `[output] dir` (default `slam-out`).
@@ -206,6 +207,11 @@ fn run_inner(
     progress.finish();
     for warning in &output.input.warnings {
         eprintln!("slam: warning: {warning}");
+    }
+    if !quiet {
+        for note in &output.input.notes {
+            eprintln!("slam: note: {note}");
+        }
     }
     write_outputs(set.path(), config, &output, &metrics)?;
     let notes = streams.finish(set.path(), &output, grid_required)?;

@@ -19,8 +19,8 @@ use std::path::{Path, PathBuf};
 
 use slam_runtime::{Config, Start};
 use slam_sensors::data::{
-    CarmenOptions, MrclamOptions, VictoriaParkOptions, read_tum, stream_carmen, stream_mrclam,
-    stream_rb2d, stream_victoria_park,
+    CarmenOptions, McapOptions, MrclamOptions, VictoriaParkOptions, read_tum, stream_carmen,
+    stream_mcap, stream_mrclam, stream_rb2d, stream_victoria_park,
 };
 use slam_sensors::{EventStream, sim::World};
 
@@ -44,6 +44,8 @@ pub enum Target {
     Rb2d,
     /// `stream_carmen`.
     Carmen,
+    /// `stream_mcap` (a ROS 2 bag; reference poses on `/reference_pose`).
+    Mcap,
     /// `stream_victoria_park` (four files).
     VictoriaPark,
     /// `stream_mrclam` (four files).
@@ -60,9 +62,10 @@ pub enum Target {
 
 impl Target {
     /// Every target.
-    pub const ALL: [Target; 8] = [
+    pub const ALL: [Target; 9] = [
         Target::Rb2d,
         Target::Carmen,
+        Target::Mcap,
         Target::VictoriaPark,
         Target::Mrclam,
         Target::Tum,
@@ -76,6 +79,7 @@ impl Target {
         match self {
             Target::Rb2d => "rb2d",
             Target::Carmen => "carmen",
+            Target::Mcap => "mcap",
             Target::VictoriaPark => "victoria_park",
             Target::Mrclam => "mrclam",
             Target::Tum => "tum",
@@ -90,6 +94,7 @@ impl Target {
         match self {
             Target::Rb2d => &["log.rb2d"],
             Target::Carmen => &["log.carmen"],
+            Target::Mcap => &["bag.mcap"],
             Target::VictoriaPark => &[
                 "odometry.csv",
                 "laser_frame_times.csv",
@@ -178,6 +183,13 @@ fn read(target: Target, dir: &Path) -> bool {
     let stream = match target {
         Target::Rb2d => stream_rb2d(&file("log.rb2d")),
         Target::Carmen => stream_carmen(&file("log.carmen"), &CarmenOptions::default()),
+        Target::Mcap => stream_mcap(
+            &file("bag.mcap"),
+            &McapOptions {
+                reference_topic: "/reference_pose".into(),
+                ..McapOptions::default()
+            },
+        ),
         Target::VictoriaPark => stream_victoria_park(dir, &VictoriaParkOptions::default()),
         Target::Mrclam => stream_mrclam(dir, 1, &MrclamOptions::default()),
         Target::Tum => return read_tum(&file("trajectory.tum")).is_ok(),

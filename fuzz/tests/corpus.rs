@@ -144,6 +144,11 @@ fn carmen_corpus() {
 }
 
 #[test]
+fn mcap_corpus() {
+    run_target(Target::Mcap);
+}
+
+#[test]
 fn victoria_park_corpus() {
     run_target(Target::VictoriaPark);
 }

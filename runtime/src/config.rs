@@ -3,7 +3,7 @@
 //!
 //! ```toml
 //! [data]
-//! spec = "sim"            # sim, world:FILE, carmen:FILE, victoria-park:DIR, mrclam:DIR[:ROBOT], rb2d:FILE
+//! spec = "sim"            # sim, world:FILE, carmen:FILE, mcap:FILE, victoria-park:DIR, mrclam:DIR[:ROBOT], rb2d:FILE
 //! seed = 1                # simulation seed
 //!
 //! [estimator]

@@ -1,5 +1,5 @@
 //! Where a session's events come from: a data spec (`sim`, `world:FILE`, `carmen:FILE`,
-//! `victoria-park:DIR`, `mrclam:DIR[:ROBOT]`, `rb2d:FILE`), read as a stream of events
+//! `mcap:FILE`, `victoria-park:DIR`, `mrclam:DIR[:ROBOT]`, `rb2d:FILE`), read as a stream of events
 //! ([`EventStream`]: a run's memory does not grow with the log), with the optional changes of
 //! the motion (`[data.odometry_from_poses]`, `[data.laser_odometry]`).
 //!
@@ -11,8 +11,9 @@ use std::str::FromStr;
 use serde::{Deserialize, Serialize};
 use slam_sensors::EventStream;
 use slam_sensors::data::{
-    CarmenOptions, MrclamOptions, PoseOdometryParams, VictoriaParkOptions, odometry_from_poses,
-    stream_carmen, stream_mrclam, stream_rb2d, stream_victoria_park,
+    CarmenOptions, McapOptions, MrclamOptions, PoseOdometryParams, VictoriaParkOptions,
+    odometry_from_poses, stream_carmen, stream_mcap, stream_mrclam, stream_rb2d,
+    stream_victoria_park,
 };
 use slam_sensors::laser_odometry::{
     LaserOdometryCounts, LaserOdometryParams, laser_odometry_stream,
@@ -31,6 +32,8 @@ pub enum DataSpec {
     World(PathBuf),
     /// A CARMEN log, plain or gzipped.
     Carmen(PathBuf),
+    /// A ROS 2 bag stored as MCAP (topics from `[data.mcap]`).
+    Mcap(PathBuf),
     /// The Victoria Park dataset folder.
     VictoriaPark(PathBuf),
     /// A UTIAS MR.CLAM folder and robot number (1 to 5).
@@ -65,6 +68,7 @@ impl FromStr for DataSpec {
             "sim" if rest.is_empty() => Ok(DataSpec::Sim),
             "world" => Ok(DataSpec::World(path()?)),
             "carmen" => Ok(DataSpec::Carmen(path()?)),
+            "mcap" => Ok(DataSpec::Mcap(path()?)),
             "victoria-park" => Ok(DataSpec::VictoriaPark(path()?)),
             "rb2d" => Ok(DataSpec::Rb2d(path()?)),
             "mrclam" => {
@@ -81,8 +85,8 @@ impl FromStr for DataSpec {
                 Ok(DataSpec::Mrclam(PathBuf::from(dir), robot))
             }
             _ => Err(usage(format!(
-                "unknown data spec `{text}`: use sim, world:FILE, carmen:FILE, victoria-park:DIR, \
-                 mrclam:DIR[:ROBOT] or rb2d:FILE"
+                "unknown data spec `{text}`: use sim, world:FILE, carmen:FILE, mcap:FILE, \
+                 victoria-park:DIR, mrclam:DIR[:ROBOT] or rb2d:FILE"
             ))),
         }
     }
@@ -144,6 +148,54 @@ impl Default for MrclamConfig {
     }
 }
 
+/// Topics and frames of the ROS 2 bag reader (`[data.mcap]`); see [`McapOptions`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct McapConfig {
+    /// The `sensor_msgs/msg/LaserScan` topic.
+    pub scan_topic: String,
+    /// The `nav_msgs/msg/Odometry` topic; `""`: none.
+    pub odom_topic: String,
+    /// The reference pose topic (`geometry_msgs/msg/PoseStamped` or `nav_msgs/msg/Odometry`),
+    /// e.g. another system's poses for the ATE; `""` (the default): none.
+    pub reference_topic: String,
+    /// The robot frame, where the `/tf_static` chain to the laser frame starts.
+    pub base_frame: String,
+    /// The laser's mount `[x, y, yaw]` (m, m, rad) when `/tf_static` does not give it;
+    /// absent: the identity.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub laser_mount: Option<[f64; 3]>,
+}
+
+impl Default for McapConfig {
+    fn default() -> Self {
+        let o = McapOptions::default();
+        McapConfig {
+            scan_topic: o.scan_topic,
+            odom_topic: o.odom_topic,
+            reference_topic: o.reference_topic,
+            base_frame: o.base_frame,
+            laser_mount: None,
+        }
+    }
+}
+
+impl McapConfig {
+    /// The reader's options.
+    pub fn options(&self) -> McapOptions {
+        McapOptions {
+            scan_topic: self.scan_topic.clone(),
+            odom_topic: self.odom_topic.clone(),
+            reference_topic: self.reference_topic.clone(),
+            base_frame: self.base_frame.clone(),
+            laser_mount: self.laser_mount.map(|[x, y, yaw]| {
+                slam_core::Pose3::new(slam_core::nalgebra::Vector3::new(x, y, 0.0), yaw, 0.0, 0.0)
+            }),
+            ..McapOptions::default()
+        }
+    }
+}
+
 /// The `[data]` table.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -161,6 +213,8 @@ pub struct DataConfig {
     pub victoria_park: VictoriaParkConfig,
     /// MR.CLAM reader noise settings.
     pub mrclam: MrclamConfig,
+    /// ROS 2 bag (MCAP) topics and frames.
+    pub mcap: McapConfig,
     /// Replace the data's motion by odometry built from its reference poses with seeded
     /// noise (for logs without raw odometry, such as the Radish corrected logs).
     pub odometry_from_poses: Option<PoseOdometryParams>,
@@ -178,6 +232,7 @@ impl Default for DataConfig {
             max_events: 0,
             victoria_park: VictoriaParkConfig::default(),
             mrclam: MrclamConfig::default(),
+            mcap: McapConfig::default(),
             odometry_from_poses: None,
             laser_odometry: None,
         }
@@ -250,6 +305,7 @@ impl DataConfig {
                 None,
                 given(true),
             ),
+            DataSpec::Mcap(path) => (stream_mcap(path, &self.mcap.options())?, None, given(true)),
             DataSpec::VictoriaPark(dir) => {
                 let v = &self.victoria_park;
                 let reader = VictoriaParkOptions {
@@ -294,6 +350,31 @@ mod tests {
             DataSpec::Mrclam("/d/MRCLAM".into(), 1)
         );
         assert!("carmen:".parse::<DataSpec>().is_err());
+        assert_eq!(
+            "mcap:/d/run.mcap".parse::<DataSpec>().unwrap(),
+            DataSpec::Mcap("/d/run.mcap".into())
+        );
         assert!("bag:x".parse::<DataSpec>().is_err());
+    }
+
+    #[test]
+    fn mcap_topics_come_from_the_config_and_unknown_keys_are_errors() {
+        let config = crate::Config::from_toml(
+            "[data]\nspec = \"mcap:run.mcap\"\n[data.mcap]\nreference_topic = \"/truth\"\n\
+             laser_mount = [0.1, 0.0, 2.5]\n",
+            "t.toml",
+        )
+        .unwrap();
+        let options = config.data.mcap.options();
+        assert_eq!(
+            (options.scan_topic.as_str(), options.odom_topic.as_str()),
+            ("/scan", "/odom")
+        );
+        assert_eq!(options.reference_topic, "/truth");
+        assert_eq!(options.laser_mount.unwrap().yaw, 2.5);
+        let e = crate::Config::from_toml("[data.mcap]\nscan_topik = \"/x\"\n", "t.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("scan_topik"), "{e}");
     }
 }

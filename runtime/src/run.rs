@@ -64,6 +64,8 @@ pub struct InputReport {
     pub skipped_readings: BTreeMap<String, usize>,
     /// Warnings about the data (e.g. implausible units).
     pub warnings: Vec<String>,
+    /// Notes on how the data were read (e.g. where the laser mount came from).
+    pub notes: Vec<String>,
 }
 
 impl InputReport {
@@ -72,6 +74,7 @@ impl InputReport {
             skipped_lines: counter.get(),
             skipped_readings: counter.readings(),
             warnings: counter.warnings(),
+            notes: counter.notes(),
         }
     }
 }

@@ -184,6 +184,7 @@ struct Skipped {
     lines: BTreeMap<String, usize>,
     readings: BTreeMap<String, usize>,
     warnings: Vec<String>,
+    notes: Vec<String>,
 }
 
 /// At most this many distinct warnings are kept (a warning is about the data, not a line).
@@ -215,6 +216,21 @@ impl SkipCounter {
         if skipped.warnings.len() < MAX_WARNINGS && !skipped.warnings.contains(&warning) {
             skipped.warnings.push(warning);
         }
+    }
+
+    /// Keeps a note on how the data were read (e.g. where a sensor's mount came from), once;
+    /// at most a few dozen are kept.
+    pub fn note(&self, note: impl Into<String>) {
+        let note = note.into();
+        let mut skipped = self.lock();
+        if skipped.notes.len() < MAX_WARNINGS && !skipped.notes.contains(&note) {
+            skipped.notes.push(note);
+        }
+    }
+
+    /// The notes so far.
+    pub fn notes(&self) -> Vec<String> {
+        self.lock().notes.clone()
     }
 
     /// The unused lines so far, by first word.
@@ -333,6 +349,11 @@ impl EventStream {
     /// Warnings about the data so far (e.g. implausible units).
     pub fn warnings(&self) -> Vec<String> {
         self.skipped.warnings()
+    }
+
+    /// Notes on how the data were read so far (e.g. where the laser mount came from).
+    pub fn notes(&self) -> Vec<String> {
+        self.skipped.notes()
     }
 
     /// The shared skip counter, for an adapter that passes it on to the stream it builds.

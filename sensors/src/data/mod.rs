@@ -5,6 +5,7 @@
 //! | reader | data | clock | events |
 //! |---|---|---|---|
 //! | [`stream_carmen`], [`read_carmen`] | CARMEN logs (plain or gzip), e.g. the Radish "corrected" logs | logger timestamps, s (line numbers, [`Clock::Sequence`], where they cannot order the events) | scans, reference poses, pose increments |
+//! | [`stream_mcap`], [`read_mcap`] | ROS 2 bags (MCAP, CDR): `LaserScan`, `Odometry`, reference poses, `/tf_static` | header stamps, seconds | scans, reference poses, pose increments |
 //! | [`stream_victoria_park`], [`read_victoria_park`] | Victoria Park (`converted/` CSV files) | seconds | Ackermann motion, pole observations, GPS |
 //! | [`stream_mrclam`], [`read_mrclam`] | UTIAS MR.CLAM dataset 1, one robot | seconds | unicycle motion, range-bearing observations, landmark map |
 //! | [`read_tum`] | TUM trajectories (`t x y z qx qy qz qw`) | seconds | stamped poses (not an event stream) |
@@ -29,6 +30,8 @@
 //! [`Clock::Sequence`]: crate::Clock::Sequence
 
 pub mod carmen;
+mod cdr;
+pub mod mcap;
 pub mod mrclam;
 pub mod pose_odometry;
 pub mod rb2d;
@@ -36,6 +39,7 @@ pub mod tum;
 mod units;
 pub mod victoria_park;
 
+pub use self::mcap::{McapOptions, read_mcap, stream_mcap};
 pub use carmen::{CarmenOptions, read_carmen, stream_carmen};
 pub use mrclam::{MrclamOptions, read_mrclam, stream_mrclam};
 pub use pose_odometry::{PoseOdometryParams, odometry_from_poses};

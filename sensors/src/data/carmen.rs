@@ -66,6 +66,7 @@ use std::path::Path;
 use slam_core::nalgebra::Vector3;
 use slam_core::{Pose2, Pose3};
 
+use super::stamps::Times;
 use super::{Fields, Lines, at, write_atomically};
 use crate::error::{Result, SensorError};
 use crate::events::{
@@ -118,9 +119,6 @@ pub const STAMP_OUTLIER_S: f64 = 1.0;
 /// The largest fraction of a log's scans that may be stamped at or before the scan before
 /// them for its stamps to be used as times.
 pub const MAX_LATE_SCANS: f64 = 0.01;
-
-/// At most this many motion events wait for their times (see [`Times::release`]).
-const MAX_HELD: usize = 4096;
 
 /// The key under which lines whose first word is not a message name are counted.
 const NOT_A_MESSAGE: &str = "(not a CARMEN message)";
@@ -369,7 +367,8 @@ impl CarmenReader {
         let path = self.lines.path();
         let line = self.lines.number();
         if let Some(warning) = self.times.repairs() {
-            self.skipped.warn(format!("{}: {warning}", path.display()));
+            self.skipped
+                .warn(format!("{}: logger {warning}", path.display()));
         }
         self.scans.decide(path, line, &self.skipped)?;
         if self.records > 0 {
@@ -613,152 +612,6 @@ fn survey_stamps(path: &Path) -> Result<std::result::Result<(), String>> {
         )));
     }
     Ok(Ok(()))
-}
-
-/// A motion event waiting for its time.
-struct Held {
-    stamp: f64,
-    /// Stamped out of order: takes the time of the record after it.
-    out_of_order: bool,
-    event: Event,
-}
-
-/// Logger timestamps into event times that never go back (see the [module](self)
-/// documentation): motion events wait for the next scan, which bounds their times.
-#[derive(Default)]
-struct Times {
-    held: Vec<Held>,
-    /// The time of the last event written.
-    last: Option<f64>,
-    /// The latest stamp of a record in order.
-    reached: Option<f64>,
-    /// Scans stamped before the time already written, and by how much at most.
-    late_scans: usize,
-    latest_scan: f64,
-    /// Motion events stamped out of order, and those whose time is not their stamp.
-    out_of_order: usize,
-    moved: usize,
-}
-
-impl Times {
-    /// The time of a scan stamped `stamp`; writes the motion before it to `out` first.
-    fn scan(&mut self, stamp: f64, out: &mut VecDeque<TimedEvent>) -> f64 {
-        self.flush(stamp, out);
-        let time = match self.last {
-            Some(last) if stamp < last => {
-                self.late_scans += 1;
-                self.latest_scan = self.latest_scan.max(last - stamp);
-                last
-            }
-            _ => stamp,
-        };
-        self.last = Some(time);
-        self.reached = Some(self.reached.map_or(stamp, |r| r.max(stamp)));
-        time
-    }
-
-    /// An `ODOM` record stamped `stamp` and its motion event (none for the first).
-    fn odometry(&mut self, stamp: f64, event: Option<Event>, out: &mut VecDeque<TimedEvent>) {
-        let out_of_order = self.reached.is_some_and(|r| stamp < r - STAMP_OUTLIER_S);
-        if !out_of_order {
-            self.reached = Some(self.reached.map_or(stamp, |r| r.max(stamp)));
-        }
-        if let Some(event) = event {
-            self.held.push(Held {
-                stamp,
-                out_of_order,
-                event,
-            });
-        }
-        self.release(out);
-    }
-
-    /// The times of the waiting motion events with nothing after them but `bound`: each its
-    /// stamp, bounded by the times after it; one stamped out of order takes the time after it.
-    fn provisional(&self, bound: f64) -> Vec<f64> {
-        let mut after = bound;
-        let mut times = vec![0.0; self.held.len()];
-        for (time, held) in times.iter_mut().zip(&self.held).rev() {
-            *time = if held.out_of_order {
-                after
-            } else {
-                held.stamp.min(after)
-            };
-            after = *time;
-        }
-        times
-    }
-
-    /// Writes the waiting motion events whose times no later record can lower (records in
-    /// order are stamped at most [`STAMP_OUTLIER_S`] before the latest stamp), or all of them
-    /// when too many wait: a log of odometry alone streams too.
-    fn release(&mut self, out: &mut VecDeque<TimedEvent>) {
-        let Some(reached) = self.reached else { return };
-        let times = self.provisional(f64::INFINITY);
-        let safe = if self.held.len() >= MAX_HELD {
-            times.len()
-        } else {
-            times.partition_point(|&t| t <= reached - STAMP_OUTLIER_S)
-        };
-        self.write(safe, &times, out);
-    }
-
-    /// Writes the waiting motion events to `out`, none after `bound` (the next scan's stamp,
-    /// or infinity at the end).
-    fn flush(&mut self, bound: f64, out: &mut VecDeque<TimedEvent>) {
-        let times = self.provisional(bound);
-        self.write(times.len(), &times, out);
-    }
-
-    /// Writes the first `n` waiting motion events with `times`, never before the time
-    /// already written.
-    fn write(&mut self, n: usize, times: &[f64], out: &mut VecDeque<TimedEvent>) {
-        for (held, &time) in self.held.drain(..n).zip(times) {
-            // Without a record after it, an event stamped out of order takes the time before.
-            let time = match (self.last, time.is_finite()) {
-                (Some(last), true) => time.max(last),
-                (Some(last), false) => last,
-                (None, true) => time,
-                (None, false) => held.stamp,
-            };
-            if held.out_of_order {
-                self.out_of_order += 1;
-            } else if time != held.stamp {
-                self.moved += 1;
-            }
-            self.last = Some(time);
-            out.push_back(TimedEvent {
-                time,
-                event: held.event,
-            });
-        }
-    }
-
-    /// What the repairs changed, for a warning; `None` when every time is its stamp.
-    fn repairs(&self) -> Option<String> {
-        let mut parts = Vec::new();
-        if self.late_scans > 0 {
-            parts.push(format!(
-                "{} scans stamped up to {:.3} s before the time already reached took that time",
-                self.late_scans, self.latest_scan
-            ));
-        }
-        if self.out_of_order > 0 {
-            parts.push(format!(
-                "{} ODOM lines stamped more than {STAMP_OUTLIER_S} s before the latest stamp \
-                 (e.g. 0) took the time of the record after them",
-                self.out_of_order
-            ));
-        }
-        if self.moved > 0 {
-            parts.push(format!(
-                "{} ODOM lines stamped out of order with their neighbours took a neighbour's \
-                 time",
-                self.moved
-            ));
-        }
-        (!parts.is_empty()).then(|| format!("logger timestamps repaired: {}", parts.join("; ")))
-    }
 }
 
 /// The beam spacing of an `FLASER`/`RLASER` line with `n` beams over 180 degrees.
@@ -1112,11 +965,11 @@ mod tests {
             "{warning}"
         );
         assert!(
-            warning.contains("2 ODOM lines stamped more than 1 s before"),
+            warning.contains("2 odometry records stamped more than 1 s before"),
             "{warning}"
         );
         assert!(
-            warning.contains("1 ODOM lines stamped out of order"),
+            warning.contains("1 odometry records stamped out of order"),
             "{warning}"
         );
         // A scan stamped before the scan before it takes that scan's time; more than 1 % of

@@ -28,8 +28,11 @@
 //!
 //! **Order and times.** Events come in the order of the file (the recording order, in which
 //! `ros2 bag play` replays), like the CARMEN reader's line order; their times are the messages'
-//! header stamps, in seconds ([`Clock::Seconds`]). A stamp earlier than the previous event's is
-//! held at that time (events stay in time order) and a warning counts them.
+//! header stamps, in seconds ([`Clock::Seconds`]), repaired where they go back exactly as the
+//! CARMEN reader repairs logger timestamps (`data/stamps.rs`: odometry waits for the next
+//! scan, which bounds its time; one stamped far out of order takes the time after it; a late
+//! scan takes the time already reached), so that a bag made from a CARMEN log gives the same
+//! events at the same times. A warning counts the repairs.
 //!
 //! **Streaming.** The file is read from start to end through a buffered reader
 //! (`mcap::sans_io::LinearReader`, no memory map): at most one chunk is held in memory.
@@ -50,6 +53,7 @@ use slam_core::nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, V
 use slam_core::{Pose2, Pose3};
 
 use super::cdr;
+use super::stamps::Times;
 use crate::error::{Result, SensorError};
 use crate::events::{
     Clock, Dataset, DatasetInfo, Event, EventStream, Pump, SkipCounter, Step, TimedEvent, TruthKind,
@@ -279,8 +283,7 @@ pub fn stream_mcap(path: &Path, options: &McapOptions) -> Result<EventStream> {
         transforms: HashMap::new(),
         mounts: HashMap::new(),
         previous_odometry: None,
-        last_time: None,
-        held: 0,
+        times: Times::default(),
         skipped: skipped.clone(),
         number: String::new(),
     };
@@ -372,10 +375,8 @@ struct McapReader {
     /// The laser mount of each scan frame, once decided.
     mounts: HashMap<String, Pose3>,
     previous_odometry: Option<Pose2>,
-    /// The time of the last event.
-    last_time: Option<f64>,
-    /// Messages whose stamp was held at the previous event's time.
-    held: u64,
+    /// Header stamps into event times that never go back.
+    times: Times,
     skipped: SkipCounter,
     /// A buffer for widening `float32` values.
     number: String,
@@ -385,8 +386,15 @@ impl Step for McapReader {
     fn step(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<bool> {
         loop {
             let event = match self.reader.next_event() {
-                None => return self.end().map(|()| false),
-                Some(Err(e)) => return Err(self.container_error(e)),
+                None => {
+                    self.times.flush(f64::INFINITY, out);
+                    return self.end().map(|()| false);
+                }
+                Some(Err(e)) => {
+                    // The events of the messages before the error come first.
+                    self.times.flush(f64::INFINITY, out);
+                    return Err(self.container_error(e));
+                }
                 Some(Ok(event)) => event,
             };
             match event {
@@ -416,7 +424,10 @@ impl Step for McapReader {
                         _ => None,
                     };
                     if let Some((channel_id, data)) = message {
-                        self.message(channel_id, &data, out)?;
+                        if let Err(error) = self.message(channel_id, &data, out) {
+                            self.times.flush(f64::INFINITY, out);
+                            return Err(error);
+                        }
                         if !out.is_empty() {
                             return Ok(true);
                         }
@@ -506,7 +517,8 @@ impl McapReader {
                 self.records += 1;
                 let mount = self.mount(&msg.header.frame_id);
                 let scan = self.scan(&msg).map_err(at)?;
-                let time = self.time(msg.header.stamp).map_err(at)?;
+                let stamp = finite_stamp(msg.header.stamp).map_err(at)?;
+                let time = self.times.scan(stamp, out);
                 out.push_back(TimedEvent {
                     time,
                     event: Event::Scan {
@@ -519,17 +531,16 @@ impl McapReader {
                 let msg = cdr::odometry(data).map_err(at)?;
                 self.records += 1;
                 let pose = pose2(&msg.pose).map_err(at)?;
-                let time = self.time(msg.header.stamp).map_err(at)?;
-                if let Some(previous) = self.previous_odometry {
-                    let step =
+                let stamp = finite_stamp(msg.header.stamp).map_err(at)?;
+                let event = match self.previous_odometry {
+                    Some(previous) => Some(Event::Motion(Box::new(
                         PoseIncrement::between(&previous, &pose, &self.options.odometry_noise)
-                            .map_err(|e| at(super::reason(&e)))?;
-                    out.push_back(TimedEvent {
-                        time,
-                        event: Event::Motion(Box::new(step)),
-                    });
-                }
+                            .map_err(|e| at(super::reason(&e)))?,
+                    ))),
+                    None => None,
+                };
                 self.previous_odometry = Some(pose);
+                self.times.odometry(stamp, event, out);
             }
             Role::Reference { odometry } => {
                 let msg = if odometry {
@@ -539,7 +550,9 @@ impl McapReader {
                 }
                 .map_err(at)?;
                 let pose = pose2(&msg.pose).map_err(at)?;
-                let time = self.time(msg.header.stamp).map_err(at)?;
+                let time = self
+                    .times
+                    .other(finite_stamp(msg.header.stamp).map_err(at)?);
                 out.push_back(TimedEvent {
                     time,
                     event: Event::GroundTruth {
@@ -550,22 +563,6 @@ impl McapReader {
             }
         }
         Ok(())
-    }
-
-    /// The event time of a stamp: held at the previous event's time when it goes back.
-    fn time(&mut self, stamp: f64) -> std::result::Result<f64, String> {
-        if !stamp.is_finite() {
-            return Err(format!("header stamp {stamp} is not finite"));
-        }
-        let time = match self.last_time {
-            Some(last) if stamp < last => {
-                self.held += 1;
-                last
-            }
-            _ => stamp,
-        };
-        self.last_time = Some(time);
-        Ok(time)
     }
 
     /// The laser mount of scans in `frame`, decided at its first scan (with a note saying
@@ -665,13 +662,9 @@ impl McapReader {
         self.topics
             .check_present(&self.seen, &present)
             .map_err(|e| self.input(e))?;
-        if self.held > 0 {
-            self.skipped.warn(format!(
-                "{}: {} messages have a header stamp before the previous message's; their time \
-                 is held at the previous one (the events keep the file's order)",
-                self.path.display(),
-                self.held
-            ));
+        if let Some(repairs) = self.times.repairs() {
+            self.skipped
+                .warn(format!("{}: header {repairs}", self.path.display()));
         }
         if self.records == 0 {
             return Err(self.input(format!(
@@ -691,6 +684,15 @@ impl McapReader {
 /// A `float32` as the `float64` of its shortest decimal form (`0.1f32` becomes `0.1`, not
 /// `0.10000000149`): the value a person reading the bag sees, and the one a text log of the
 /// same data (e.g. a CARMEN log converted to a bag) holds.
+/// A header stamp, checked finite.
+fn finite_stamp(stamp: f64) -> std::result::Result<f64, String> {
+    if stamp.is_finite() {
+        Ok(stamp)
+    } else {
+        Err(format!("header stamp {stamp} is not finite"))
+    }
+}
+
 fn widen(value: f32, buffer: &mut String) -> f64 {
     use std::fmt::Write as _;
     if !value.is_finite() {
@@ -955,7 +957,8 @@ mod tests {
             2,
             &build::pose_stamped(true, (1, 500_000_000), [1.0, 2.0, 0.5]),
         );
-        // A stamp going back is held at the previous time.
+        // Odometry stamped a little before the scan before it: its motion takes the time
+        // already reached (the CARMEN reader's repair of logger timestamps).
         bag.message(
             2,
             3,
@@ -1032,9 +1035,12 @@ mod tests {
             );
             assert_eq!(data.skipped["/imu"], 1);
             assert!(
+                data.warnings.iter().any(|w| w.contains(
+                    "timestamps repaired: 1 odometry records stamped out of order with their \
+                     neighbours took a neighbour's time"
+                )),
+                "{:?}",
                 data.warnings
-                    .iter()
-                    .any(|w| w.contains("1 messages have a header stamp before"))
             );
         }
     }

@@ -35,6 +35,7 @@ pub mod mcap;
 pub mod mrclam;
 pub mod pose_odometry;
 pub mod rb2d;
+mod stamps;
 pub mod tum;
 mod units;
 pub mod victoria_park;

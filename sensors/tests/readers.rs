@@ -105,7 +105,7 @@ fn radish_carmen_counts() {
             }
         }
         assert_time_ordered(&data);
-        eprintln!("{file}: {counts:?}, skipped {:?}", data.skipped);
+        eprintln!("{file}: {counts:?}, lines not read {:?}", data.skipped);
     }
 }
 

@@ -105,7 +105,8 @@ fn radish_carmen_counts() {
             }
         }
         assert_time_ordered(&data);
-        eprintln!("{file}: {counts:?}, lines not read {:?}", data.skipped);
+        let not_read = &data.skipped;
+        eprintln!("{file}: {counts:?}, lines not read {not_read:?}");
     }
 }
 

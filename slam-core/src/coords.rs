@@ -142,7 +142,7 @@ impl Coordinates {
     /// A coordinate list from its blocks; every value must be finite.
     pub fn new(blocks: Vec<CoordBlock>) -> Result<Self> {
         for (i, block) in blocks.iter().enumerate() {
-            ensure_finite(block.as_slice(), &format!("coordinate block {i}"))?;
+            ensure_block_finite(block, i)?;
         }
         Ok(Coordinates { blocks })
     }
@@ -194,7 +194,7 @@ impl Coordinates {
                 got: value.kind(),
             });
         }
-        ensure_finite(value.as_slice(), &format!("coordinate block {index}"))?;
+        ensure_block_finite(&value, index)?;
         self.blocks[index] = value;
         Ok(())
     }
@@ -235,5 +235,14 @@ impl Coordinates {
         let moved = self.with_vector(&(self.to_vector() + dx))?;
         *self = moved;
         Ok(())
+    }
+}
+
+/// [`ensure_finite`] for block `index`, the message formatted only on failure.
+fn ensure_block_finite(block: &CoordBlock, index: usize) -> Result<()> {
+    if block.is_finite() {
+        Ok(())
+    } else {
+        ensure_finite(block.as_slice(), &format!("coordinate block {index}"))
     }
 }

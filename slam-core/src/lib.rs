@@ -50,7 +50,7 @@ pub use map::{
 };
 pub use measurement::{
     DynMeasurementModel, Extension, Innovation, LinearizedMeasurement, MeasurementModel,
-    Triangulation, innovation_at, linearize,
+    SensorFrame, Triangulation, innovation_at, linearize, linearize_at,
 };
 pub use motion::{MotionModel, MotionPrediction};
 pub use pose::{Pose2, Pose3, RobotPose, SensorPose, wrap_angle};

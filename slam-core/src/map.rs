@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use crate::coords::CoordBlock;
 use crate::error::{Error, Result, ensure_finite};
 use crate::feature::{Feature, Growth};
-use crate::measurement::{DynMeasurementModel, LinearizedMeasurement, linearize};
+use crate::measurement::{DynMeasurementModel, LinearizedMeasurement, SensorFrame, linearize_at};
 use crate::pose::{Pose3, RobotPose};
 
 /// Identifies a feature in a [`FeatureMap`]; never reused after removal.
@@ -470,8 +470,19 @@ impl FeatureMap {
         world_from_robot: &P,
         robot_from_sensor: &Pose3,
     ) -> Result<MapLinearization> {
+        let frame = SensorFrame::new(world_from_robot, robot_from_sensor)?;
+        self.linearize_at(id, measurement, &frame)
+    }
+
+    /// [`FeatureMap::linearize`] in a sensor frame made beforehand (once per step and mount).
+    pub fn linearize_at(
+        &self,
+        id: FeatureId,
+        measurement: &dyn DynMeasurementModel,
+        frame: &SensorFrame,
+    ) -> Result<MapLinearization> {
         let feature = self.get(id)?;
-        let mut lin = linearize(measurement, feature, world_from_robot, robot_from_sensor)?;
+        let mut lin = linearize_at(measurement, feature, frame)?;
         let mut columns = Vec::with_capacity(1 + lin.d_eta_d_shared.len());
         if feature.mspace_dim() > 0 {
             columns.push((RowOwner::Feature(id), lin.d_eta_d_own.clone()));

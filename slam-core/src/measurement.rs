@@ -9,7 +9,7 @@ use nalgebra::{DMatrix, DVector};
 use crate::coords::Coordinates;
 use crate::error::{Error, Result};
 use crate::feature::{Feature, downcast_feature};
-use crate::pose::{Pose3, RobotPose};
+use crate::pose::{Pose3, RobotPose, SensorPose};
 use crate::transform::MapToSensor;
 
 /// The innovation of one measurement of one feature and its Jacobians (eq. 16).
@@ -337,8 +337,10 @@ pub struct LinearizedMeasurement {
     pub cov_eta: DMatrix<f64>,
     /// `J_eta_o J_os J_sr`: with respect to the robot pose parameters (`m x P::DIM`).
     pub d_eta_d_robot: DMatrix<f64>,
-    /// `J_eta_o J_os J_ss`: with respect to the sensor offset `(x, y, z, yaw, pitch, roll)`.
-    pub d_eta_d_sensor_offset: DMatrix<f64>,
+    /// `J_eta_o J_os`: with respect to the sensor pose `(x, y, z, yaw, pitch, roll)` in the
+    /// world; [`LinearizedMeasurement::d_eta_d_sensor_offset`] gives the sensor offset's
+    /// columns from it (no estimator needs them at every step).
+    pub d_eta_d_sensor: DMatrix<f64>,
     /// `J_eta_o J_of B~`: with respect to the feature's own M-space perturbation.
     pub d_eta_d_own: DMatrix<f64>,
     /// `J_eta_o J_of E_k` for each shared block `k` (block index, `m x dim(block)`): the shared
@@ -349,8 +351,44 @@ pub struct LinearizedMeasurement {
     pub d_eta_d_xf: DMatrix<f64>,
 }
 
+/// A sensor's frame at one robot pose: where the sensor is in the world (eq. 17) with `J_sr`
+/// and `J_ss` (eq. 20), and the map-to-sensor transform (eqs. 7-9). It is the same for every
+/// observation that sensor makes at that pose: an estimator makes it once per step and mount
+/// and linearizes each observation with [`linearize_at`].
+///
+/// ```
+/// use slam_core::{Pose2, Pose3, RobotPose, SensorFrame};
+/// let robot = Pose2::new(1.0, 2.0, 0.5);
+/// let frame = SensorFrame::new(&robot, &Pose3::identity()).unwrap();
+/// assert_eq!(*frame.world_from_sensor(), robot.world_from_sensor(&Pose3::identity()));
+/// ```
+#[derive(Clone, Debug, PartialEq)]
+pub struct SensorFrame {
+    /// The sensor pose and its Jacobians.
+    pub pose: SensorPose,
+    /// The transform of map coordinates into the sensor frame.
+    pub to_sensor: MapToSensor,
+}
+
+impl SensorFrame {
+    /// The frame of a sensor at `robot_from_sensor` on a robot at `world_from_robot`; fails
+    /// where [`RobotPose::sensor_pose`] or [`MapToSensor::new`] fails (gimbal lock, a pose
+    /// that is not finite).
+    pub fn new<P: RobotPose>(world_from_robot: &P, robot_from_sensor: &Pose3) -> Result<Self> {
+        let pose = world_from_robot.sensor_pose(robot_from_sensor)?;
+        let to_sensor = MapToSensor::new(&pose.world_from_sensor)?;
+        Ok(SensorFrame { pose, to_sensor })
+    }
+
+    /// `world_from_sensor` (eq. 17).
+    pub fn world_from_sensor(&self) -> &Pose3 {
+        &self.pose.world_from_sensor
+    }
+}
+
 /// Linearizes `measurement` of `feature` seen by a sensor at `robot_from_sensor` on a robot at
 /// `world_from_robot`: eqs. 16-21 and 30, written once for every feature and estimator.
+/// The same as [`linearize_at`] with the [`SensorFrame`] made for this one call.
 ///
 /// ```
 /// use slam_core::{linearize, Pose2, Pose3};
@@ -366,13 +404,33 @@ pub fn linearize<P: RobotPose>(
     world_from_robot: &P,
     robot_from_sensor: &Pose3,
 ) -> Result<LinearizedMeasurement> {
-    let sensor = world_from_robot.sensor_pose(robot_from_sensor)?;
-    let to_sensor = MapToSensor::new(&sensor.world_from_sensor)?;
-    let seen = to_sensor.transform_with_jacobians(feature.coordinates())?;
+    let frame = SensorFrame::new(world_from_robot, robot_from_sensor)?;
+    linearize_at(measurement, feature, &frame)
+}
+
+/// [`linearize`] in a sensor frame made beforehand: the frame (pose composition, its
+/// Jacobians, the rotations of eqs. 7 and 34) is computed once for all observations of a
+/// step, not once per observation.
+pub fn linearize_at(
+    measurement: &dyn DynMeasurementModel,
+    feature: &dyn Feature,
+    frame: &SensorFrame,
+) -> Result<LinearizedMeasurement> {
+    let seen = frame
+        .to_sensor
+        .transform_with_jacobians(feature.coordinates())?;
     let innovation = measurement.innovation_dyn(feature, &seen.x_o)?;
-    let d_eta_d_sensor = &innovation.d_eta_d_xo * &seen.d_xo_d_sensor;
-    let d_eta_d_xf = &innovation.d_eta_d_xo * &seen.d_xo_d_xm;
-    let d_eta_d_own = &d_eta_d_xf * feature.dual()?;
+    let d_eta_d_sensor = small_product(&innovation.d_eta_d_xo, &seen.d_xo_d_sensor);
+    let d_eta_d_xf = small_product(&innovation.d_eta_d_xo, &seen.d_xo_d_xm);
+    let dual = feature.dual()?;
+    if dual.nrows() != d_eta_d_xf.ncols() {
+        return Err(Error::DimensionMismatch {
+            what: "B~ rows (dim x_f)".into(),
+            expected: d_eta_d_xf.ncols(),
+            got: dual.nrows(),
+        });
+    }
+    let d_eta_d_own = small_product(&d_eta_d_xf, &dual);
     let coordinates = feature.coordinates();
     let d_eta_d_shared = (0..coordinates.num_blocks())
         .filter(|&k| feature.is_shared(k))
@@ -382,16 +440,51 @@ pub fn linearize<P: RobotPose>(
             (k, d_eta_d_xf.columns(offset, width).into_owned())
         })
         .collect();
+    let d_eta_d_v_cov = small_product(&innovation.d_eta_d_v, &innovation.cov_v);
+    let cov_eta = DMatrix::from_fn(innovation.dim(), innovation.dim(), |i, j| {
+        (0..d_eta_d_v_cov.ncols())
+            .map(|k| d_eta_d_v_cov[(i, k)] * innovation.d_eta_d_v[(j, k)])
+            .sum()
+    });
     Ok(LinearizedMeasurement {
-        cov_eta: innovation.covariance(),
-        d_eta_d_robot: &d_eta_d_sensor * &sensor.d_sensor_d_robot,
-        d_eta_d_sensor_offset: &d_eta_d_sensor
-            * DMatrix::from_column_slice(6, 6, sensor.d_sensor_d_offset.as_slice()),
+        cov_eta,
+        d_eta_d_robot: small_product(&d_eta_d_sensor, &frame.pose.d_sensor_d_robot),
+        d_eta_d_sensor,
         d_eta_d_own,
         d_eta_d_shared,
         d_eta_d_xf,
         eta: innovation.eta,
     })
+}
+
+impl LinearizedMeasurement {
+    /// `J_eta_o J_os J_ss`: with respect to the sensor offset `(x, y, z, yaw, pitch, roll)`
+    /// on the robot, for the frame the measurement was linearized in.
+    pub fn d_eta_d_sensor_offset(&self, frame: &SensorFrame) -> DMatrix<f64> {
+        small_product(
+            &self.d_eta_d_sensor,
+            &DMatrix::from_column_slice(6, 6, frame.pose.d_sensor_d_offset.as_slice()),
+        )
+    }
+}
+
+/// `a b` for the small matrices of one measurement, by plain loops (a general matrix
+/// product's set-up costs more than the product at these sizes).
+/// The shapes are the caller's to check (a panic on a mismatch, as for `a * b`).
+fn small_product(a: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
+    assert_eq!(a.ncols(), b.nrows(), "small_product: shapes do not chain");
+    let mut out = DMatrix::zeros(a.nrows(), b.ncols());
+    for j in 0..b.ncols() {
+        for k in 0..a.ncols() {
+            let weight = b[(k, j)];
+            if weight != 0.0 {
+                for i in 0..a.nrows() {
+                    out[(i, j)] += a[(i, k)] * weight;
+                }
+            }
+        }
+    }
+    out
 }
 
 /// The innovation alone (no Jacobians through the chain): for gating and checks.

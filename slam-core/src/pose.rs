@@ -196,6 +196,68 @@ impl Pose2 {
     pub fn to_pose3(&self, z: f64) -> Pose3 {
         Pose3::new(Vector3::new(self.x, self.y, z), self.theta, 0.0, 0.0)
     }
+
+    /// `world_from_sensor` for a level mount (pitch and roll zero): a planar composition,
+    /// with `sin_cos` of the heading and the sensor's offset rotated into the world.
+    fn level_sensor(&self, robot_from_sensor: &Pose3) -> (Pose3, (f64, f64), Vector2<f64>) {
+        let (s, c) = self.theta.sin_cos();
+        let t = &robot_from_sensor.translation;
+        let offset = Vector2::new(c * t.x - s * t.y, s * t.x + c * t.y);
+        let world_from_sensor = Pose3 {
+            translation: Vector3::new(self.x + offset.x, self.y + offset.y, t.z),
+            yaw: wrap_angle(self.theta + robot_from_sensor.yaw),
+            pitch: 0.0,
+            roll: 0.0,
+        };
+        (world_from_sensor, (s, c), offset)
+    }
+
+    /// [`RobotPose::sensor_pose`] for a level mount in closed form: `J_sr` moves the sensor
+    /// with the robot and turns its offset with the heading; `J_ss` rotates the offset's
+    /// translation into the world and passes its angles through (ZYX angles of a level
+    /// composition add).
+    fn level_sensor_pose(&self, robot_from_sensor: &Pose3) -> SensorPose {
+        let (world_from_sensor, (s, c), offset) = self.level_sensor(robot_from_sensor);
+        let mut d_sensor_d_robot = DMatrix::zeros(6, 3);
+        d_sensor_d_robot[(0, 0)] = 1.0;
+        d_sensor_d_robot[(1, 1)] = 1.0;
+        d_sensor_d_robot[(0, 2)] = -offset.y;
+        d_sensor_d_robot[(1, 2)] = offset.x;
+        d_sensor_d_robot[(3, 2)] = 1.0;
+        let mut d_sensor_d_offset = Matrix6::identity();
+        d_sensor_d_offset[(0, 0)] = c;
+        d_sensor_d_offset[(0, 1)] = -s;
+        d_sensor_d_offset[(1, 0)] = s;
+        d_sensor_d_offset[(1, 1)] = c;
+        SensorPose {
+            world_from_sensor,
+            d_sensor_d_robot,
+            d_sensor_d_offset,
+        }
+    }
+
+    /// [`RobotPose::sensor_pose`] through the general 3-D composition (any mount).
+    fn sensor_pose_3d(&self, robot_from_sensor: &Pose3) -> Result<SensorPose> {
+        let (world_from_sensor, d_composed_d_robot3, d_sensor_d_offset) = self
+            .to_pose3(0.0)
+            .compose_with_jacobians(robot_from_sensor)?;
+        // d(pose3 parameters)/d(x, y, theta) of the planar embedding.
+        let mut embedding = nalgebra::Matrix6x3::zeros();
+        embedding[(0, 0)] = 1.0;
+        embedding[(1, 1)] = 1.0;
+        embedding[(3, 2)] = 1.0;
+        let d_sensor_d_robot = d_composed_d_robot3 * embedding;
+        Ok(SensorPose {
+            world_from_sensor,
+            d_sensor_d_robot: DMatrix::from_column_slice(6, 3, d_sensor_d_robot.as_slice()),
+            d_sensor_d_offset,
+        })
+    }
+}
+
+/// Whether a mount is level: its pitch and roll are exactly zero (the planar paths apply).
+fn is_level(robot_from_sensor: &Pose3) -> bool {
+    robot_from_sensor.pitch == 0.0 && robot_from_sensor.roll == 0.0
 }
 
 /// A 3-D pose: translation and ZYX Euler angles (yaw about z, then pitch about y, then roll
@@ -543,25 +605,24 @@ impl RobotPose for Pose2 {
     const DIM: usize = 3;
     const HEADING: usize = 2;
 
+    /// A level mount (pitch and roll zero) takes the planar path (one `sin_cos`); any other
+    /// the general 3-D composition.
     fn world_from_sensor(&self, robot_from_sensor: &Pose3) -> Pose3 {
-        self.to_pose3(0.0).compose(robot_from_sensor)
+        if is_level(robot_from_sensor) {
+            self.level_sensor(robot_from_sensor).0
+        } else {
+            self.to_pose3(0.0).compose(robot_from_sensor)
+        }
     }
 
+    /// A level mount takes the planar path (closed-form Jacobians), any other the general
+    /// 3-D one; the two agree to round-off (tested).
     fn sensor_pose(&self, robot_from_sensor: &Pose3) -> Result<SensorPose> {
-        let (world_from_sensor, d_composed_d_robot3, d_sensor_d_offset) = self
-            .to_pose3(0.0)
-            .compose_with_jacobians(robot_from_sensor)?;
-        // d(pose3 parameters)/d(x, y, theta) of the planar embedding.
-        let mut embedding = nalgebra::Matrix6x3::zeros();
-        embedding[(0, 0)] = 1.0;
-        embedding[(1, 1)] = 1.0;
-        embedding[(3, 2)] = 1.0;
-        let d_sensor_d_robot = d_composed_d_robot3 * embedding;
-        Ok(SensorPose {
-            world_from_sensor,
-            d_sensor_d_robot: DMatrix::from_column_slice(6, 3, d_sensor_d_robot.as_slice()),
-            d_sensor_d_offset,
-        })
+        if is_level(robot_from_sensor) {
+            Ok(self.level_sensor_pose(robot_from_sensor))
+        } else {
+            self.sensor_pose_3d(robot_from_sensor)
+        }
     }
 
     fn parameters(&self) -> Vec<f64> {
@@ -817,6 +878,23 @@ mod tests {
             let num_second = numeric_jacobian(&vb, 1e-6, |v| DVector::from_vec(pose3_diff(&a.between(&p3(v)), &rel)));
             prop_assert!((DMatrix::from_column_slice(6, 6, d_first.as_slice()) - num_first).amax() < 1e-5);
             prop_assert!((DMatrix::from_column_slice(6, 6, d_second.as_slice()) - num_second).amax() < 1e-5);
+        }
+
+        /// The planar path of a level mount agrees with the general 3-D composition.
+        #[test]
+        fn level_mount_planar_path_matches_3d(
+            robot in pose2_strategy(), offset in pose3_strategy(), flip in proptest::bool::ANY,
+        ) {
+            let level = Pose3::new(offset.translation, if flip { PI } else { offset.yaw }, 0.0, 0.0);
+            let planar = robot.sensor_pose(&level).unwrap();
+            let general = robot.sensor_pose_3d(&level).unwrap();
+            prop_assert!(pose3_diff(&planar.world_from_sensor, &general.world_from_sensor)
+                .iter().all(|d| d.abs() < 1e-9));
+            prop_assert_eq!(planar.world_from_sensor, robot.world_from_sensor(&level));
+            let composed = robot.to_pose3(0.0).compose(&level);
+            prop_assert!(pose3_diff(&planar.world_from_sensor, &composed).iter().all(|d| d.abs() < 1e-9));
+            prop_assert!((&planar.d_sensor_d_robot - &general.d_sensor_d_robot).amax() < 1e-9);
+            prop_assert!((planar.d_sensor_d_offset - general.d_sensor_d_offset).amax() < 1e-9);
         }
 
         #[test]

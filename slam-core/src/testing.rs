@@ -21,7 +21,9 @@ use nalgebra::{DMatrix, DVector, Vector3, Vector6};
 
 use crate::coords::CoordBlock;
 use crate::feature::Feature;
-use crate::measurement::{DynMeasurementModel, MeasurementModel, innovation_at, linearize};
+use crate::measurement::{
+    DynMeasurementModel, MeasurementModel, SensorFrame, innovation_at, linearize, linearize_at,
+};
 use crate::pose::{Pose2, Pose3, RobotPose};
 use crate::transform::MapToSensor;
 
@@ -764,10 +766,39 @@ pub fn check_measurement<M: MeasurementModel>(
     compare_jacobians(
         "J_eta_o J_os J_ss",
         cfg,
-        &lin.d_eta_d_sensor_offset,
+        &lin.d_eta_d_sensor_offset(
+            &SensorFrame::new(world_from_robot, robot_from_sensor)
+                .or_else(|e| fail("sensor frame", cfg, e.to_string()))?,
+        ),
         &numeric,
         tol * 10.0,
     )?;
+
+    // The same linearization with the robot as a 3-D pose (the general composition and
+    // frame, no planar path): eta, the feature's columns and the robot's x, y, yaw columns.
+    let frame_3d = SensorFrame::new(&world_from_robot.to_pose3(0.0), robot_from_sensor)
+        .or_else(|e| fail("3-D sensor frame", cfg, e.to_string()))?;
+    let lin_3d = linearize_at(dyn_model, feature, &frame_3d)
+        .or_else(|e| fail("linearize_at (3-D robot)", cfg, e.to_string()))?;
+    let robot_3d = lin_3d.d_eta_d_robot.select_columns(&[0, 1, 3]);
+    for (what, planar, general) in [
+        (
+            "eta",
+            &DMatrix::from_column_slice(m, 1, lin.eta.as_slice()),
+            &DMatrix::from_column_slice(m, 1, lin_3d.eta.as_slice()),
+        ),
+        ("J_eta_o J_os J_sr", &lin.d_eta_d_robot, &robot_3d),
+        ("J_eta_o J_of B~", &lin.d_eta_d_own, &lin_3d.d_eta_d_own),
+        ("C_eta", &lin.cov_eta, &lin_3d.cov_eta),
+    ] {
+        if (planar - general).amax() > 1e-9 * general.amax().max(1.0) {
+            return fail(
+                "planar against 3-D robot pose",
+                cfg,
+                format!("{what}: {planar} against {general}"),
+            );
+        }
+    }
 
     // Own M-space columns, J_eta_o J_of B~ (eq. 30).
     let numeric = numeric_jacobian(&DVector::zeros(feature.mspace_dim()), params.step, |dp| {

@@ -66,6 +66,40 @@ impl MapToSensor {
         if !world_from_sensor.is_finite() {
             return Err(Error::NonFinite("sensor pose".into()));
         }
+        if world_from_sensor.pitch == 0.0 && world_from_sensor.roll == 0.0 {
+            return Ok(Self::level(world_from_sensor));
+        }
+        Ok(Self::tilted(world_from_sensor))
+    }
+
+    /// [`MapToSensor::new`] for a level sensor (pitch and roll zero) in closed form: the
+    /// rotations about z alone, the 2-D rotation the plain inverse one (eq. 34 with level
+    /// angles), whose pitch and roll derivatives vanish.
+    fn level(world_from_sensor: &Pose3) -> Self {
+        let (s, c) = world_from_sensor.yaw.sin_cos();
+        // World-from-sensor rotation Rz(yaw) and its derivatives by yaw, pitch and roll at
+        // pitch = roll = 0, transposed.
+        let sensor_from_world_3d = Matrix3::new(c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0);
+        let d_yaw = Matrix3::new(-s, c, 0.0, -c, -s, 0.0, 0.0, 0.0, 0.0);
+        let d_pitch = Matrix3::new(0.0, 0.0, -1.0, 0.0, 0.0, 0.0, c, s, 0.0);
+        let d_roll = Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 1.0, s, -c, 0.0);
+        MapToSensor {
+            world_from_sensor: *world_from_sensor,
+            sensor_from_world_3d,
+            d_rotation_3d: [d_yaw, d_pitch, d_roll],
+            plane: Some(ScanPlane {
+                sensor_from_world_2d: Matrix2::new(c, s, -s, c),
+                d_rotation_2d: [
+                    Matrix2::new(-s, c, -c, -s),
+                    Matrix2::zeros(),
+                    Matrix2::zeros(),
+                ],
+            }),
+        }
+    }
+
+    /// [`MapToSensor::new`] for any finite sensor pose.
+    fn tilted(world_from_sensor: &Pose3) -> Self {
         let world_from_sensor_rotation = world_from_sensor.rotation();
         let d_world_from_sensor = world_from_sensor.rotation_derivatives();
         let plane = world_from_sensor_rotation
@@ -82,12 +116,12 @@ impl MapToSensor {
                 }),
             })
         };
-        Ok(MapToSensor {
+        MapToSensor {
             world_from_sensor: *world_from_sensor,
             sensor_from_world_3d: world_from_sensor_rotation.transpose(),
             d_rotation_3d: d_world_from_sensor.map(|d| d.transpose()),
             plane,
-        })
+        }
     }
 
     /// The sensor pose this transform was made for.
@@ -228,6 +262,28 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(256))]
+
+        /// The closed form for a level sensor agrees with the general construction.
+        #[test]
+        fn level_sensor_matches_general_construction(
+            x in -10.0..10.0f64, y in -10.0..10.0f64, z in -2.0..2.0f64, yaw in -3.2..3.2f64,
+        ) {
+            let pose = Pose3::new(Vector3::new(x, y, z), yaw, 0.0, 0.0);
+            let level = MapToSensor::level(&pose);
+            let general = MapToSensor::tilted(&pose);
+            prop_assert_eq!(MapToSensor::new(&pose).unwrap(), level.clone());
+            prop_assert!((level.sensor_from_world_3d - general.sensor_from_world_3d).amax() < 1e-12);
+            for k in 0..3 {
+                prop_assert!((level.d_rotation_3d[k] - general.d_rotation_3d[k]).amax() < 1e-12);
+            }
+            let (Some(a), Some(b)) = (&level.plane, &general.plane) else {
+                unreachable!("a level sensor's plane cuts vertical lines")
+            };
+            prop_assert!((a.sensor_from_world_2d - b.sensor_from_world_2d).amax() < 1e-12);
+            for k in 0..3 {
+                prop_assert!((a.d_rotation_2d[k] - b.d_rotation_2d[k]).amax() < 1e-12);
+            }
+        }
 
         #[test]
         fn tilted_rotation_matches_paper_eq34(yaw in -3.1..3.1f64, pitch in -1.2..1.2f64, roll in -1.2..1.2f64) {

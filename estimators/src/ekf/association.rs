@@ -14,7 +14,9 @@ impl<P: RobotPose> Ekf<P> {
     /// The candidate features of an observation with their Mahalanobis distances, nearest
     /// first.
     fn candidates(&mut self, observation: &Observation) -> Vec<Candidate<Pairing>> {
-        let world_from_sensor = self.pose.world_from_sensor(&observation.robot_from_sensor);
+        let world_from_sensor = self
+            .frames
+            .world_from_sensor(&self.pose, &observation.robot_from_sensor);
         let mut skips = std::mem::take(&mut self.skips);
         let nearby = candidate_features(
             self.map.iter(),
@@ -108,7 +110,9 @@ impl<P: RobotPose> Ekf<P> {
     /// Whether the feature `observation` would start overlaps an existing one within the
     /// clearance.
     fn crowded(&self, observation: &Observation) -> bool {
-        let world_from_sensor = self.pose.world_from_sensor(&observation.robot_from_sensor);
+        let world_from_sensor = self
+            .frames
+            .world_from_sensor(&self.pose, &observation.robot_from_sensor);
         crowded(
             self.map.iter().map(|(_, f)| f),
             observation.measurement.as_ref(),

@@ -29,6 +29,7 @@
 mod association;
 mod corners;
 mod covariance;
+mod frames;
 mod jacobians;
 mod merge;
 mod update;
@@ -46,6 +47,7 @@ use slam_core::{
 use crate::association::{Association, AssociationSettings, Gates};
 use crate::lifecycle::{LifecycleSettings, Track, first_failure};
 use covariance::StateCovariance;
+use frames::StepFrames;
 use jacobians::pose_generators;
 
 /// Settings of the [`Ekf`]; `Default` gives the values used on the built-in world.
@@ -221,6 +223,8 @@ pub struct Ekf<P: RobotPose> {
     view_batch: Vec<Pairing>,
     /// What the current step left out, by reason.
     skips: Skips,
+    /// The sensor frames of the current step's mounts at the current pose.
+    frames: StepFrames<P>,
 }
 
 /// What the filter decided for one observation.
@@ -264,6 +268,7 @@ impl<P: RobotPose> Ekf<P> {
             features_merged: 0,
             view_batch: Vec::new(),
             skips: Skips::default(),
+            frames: StepFrames::default(),
         })
     }
 
@@ -331,14 +336,19 @@ impl<P: RobotPose> Ekf<P> {
 
     /// Linearizes `observation` against feature `id` at the current state (eq. 30).
     fn linearize(&self, observation: &Observation, id: FeatureId) -> Result<Pairing> {
-        let lin = self.map.linearize(
-            id,
-            observation.measurement.as_ref(),
-            &self.pose,
-            &observation.robot_from_sensor,
-        )?;
-        let mut indices = Self::pose_indices();
-        let mut blocks = vec![lin.measurement.d_eta_d_robot.clone()];
+        let frame = self
+            .frames
+            .frame(&self.pose, &observation.robot_from_sensor)?;
+        let lin = self
+            .map
+            .linearize_at(id, observation.measurement.as_ref(), &frame)?;
+        let width = P::DIM + lin.columns.iter().map(|(_, d)| d.ncols()).sum::<usize>();
+        let mut indices = Vec::with_capacity(width);
+        indices.extend(0..P::DIM);
+        let m = lin.measurement.eta.len();
+        let mut h = DMatrix::zeros(m, width);
+        h.columns_mut(0, P::DIM)
+            .copy_from(&lin.measurement.d_eta_d_robot);
         for (owner, d) in &lin.columns {
             let rows = self.rows.get(owner).ok_or_else(|| {
                 Error::Invariant(format!("row owner {owner:?} has no state rows"))
@@ -350,15 +360,8 @@ impl<P: RobotPose> Ekf<P> {
                     got: d.ncols(),
                 });
             }
+            h.columns_mut(indices.len(), d.ncols()).copy_from(d);
             indices.extend_from_slice(rows);
-            blocks.push(d.clone());
-        }
-        let m = lin.measurement.eta.len();
-        let mut h = DMatrix::zeros(m, indices.len());
-        let mut column = 0;
-        for block in blocks {
-            h.view_mut((0, column), block.shape()).copy_from(&block);
-            column += block.ncols();
         }
         Ok(Pairing {
             feature: id,
@@ -404,6 +407,7 @@ impl<P: RobotPose> Estimator<P> for Ekf<P> {
     fn update(&mut self, observations: &[Observation]) -> Result<UpdateReport> {
         self.step += 1;
         self.skips = Skips::default();
+        self.frames.prepare(&self.pose, observations);
         let decisions = self.associate(observations)?;
         let mut report = self.apply_decisions(observations, decisions)?;
         report.skipped = std::mem::take(&mut self.skips);

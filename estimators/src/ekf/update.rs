@@ -54,6 +54,8 @@ impl<P: RobotPose> Ekf<P> {
             }
         }
         report.rejected += self.update_batch(batch)?;
+        // The update moved the pose: the frames of the extensions below are at the new one.
+        self.frames.prepare(&self.pose, observations);
         for &(index, id) in &features.seen {
             self.extend(id, &observations[index])?;
         }
@@ -203,7 +205,9 @@ impl<P: RobotPose> Ekf<P> {
 
     /// The feature `observation` would start, placed from the current pose.
     fn start_feature(&mut self, observation: &Observation) -> Result<Option<FeatureId>> {
-        let world_from_sensor = self.pose.world_from_sensor(&observation.robot_from_sensor);
+        let world_from_sensor = self
+            .frames
+            .world_from_sensor(&self.pose, &observation.robot_from_sensor);
         let feature = match observation
             .measurement
             .initial_feature_dyn(&world_from_sensor)
@@ -230,12 +234,17 @@ impl<P: RobotPose> Ekf<P> {
     /// the current pose covariance while the feature can grow by triangulation.
     fn note_sighting(&mut self, id: FeatureId, observation: &Observation) -> Result<()> {
         let triangulates = observation.measurement.triangulates_dyn();
+        let frame = self
+            .frames
+            .frame(&self.pose, &observation.robot_from_sensor)
+            .ok();
         let sighting = Sighting {
             observation,
             world_from_robot: &self.pose,
             step: self.step,
             view_measurement: triangulates.then(|| Arc::from(observation.measurement.clone_box())),
             pose_covariance: triangulates.then(|| slam_core::Estimator::pose_covariance(self)),
+            to_sensor: frame.as_ref().map(|f| &f.to_sensor),
         };
         let feature = self.map.get(id)?;
         let track = self.tracks.entry(id).or_default();
@@ -283,7 +292,10 @@ impl<P: RobotPose> Ekf<P> {
     /// Applies the measurement's change outside the M-space (a wall's extent).
     fn extend(&mut self, id: FeatureId, observation: &Observation) -> Result<()> {
         let feature = self.map.get(id)?;
-        match extension_of(feature, observation, &self.pose, &mut self.skips) {
+        let world_from_sensor = self
+            .frames
+            .world_from_sensor(&self.pose, &observation.robot_from_sensor);
+        match extension_of(feature, observation, &world_from_sensor, &mut self.skips) {
             Some(extension) => self.apply_extension(id, extension),
             None => Ok(()),
         }

@@ -173,7 +173,12 @@ impl<P: RobotPose> Landmark<P> {
         pose: &P,
         skips: &mut Skips,
     ) -> Result<()> {
-        let Some(extension) = extension_of(self.feature.as_ref(), observation, pose, skips) else {
+        let Some(extension) = extension_of(
+            self.feature.as_ref(),
+            observation,
+            &pose.world_from_sensor(&observation.robot_from_sensor),
+            skips,
+        ) else {
             return Ok(());
         };
         let mut single = FeatureMap::new();

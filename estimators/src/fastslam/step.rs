@@ -403,6 +403,7 @@ fn sight<P: RobotPose>(
         step: context.step,
         view_measurement: context.shared.get(index).cloned().flatten(),
         pose_covariance: None,
+        to_sensor: None,
     };
     landmark.track.sight(
         landmark.feature.as_ref(),

@@ -119,6 +119,9 @@ pub(crate) struct Sighting<'a, P> {
     pub view_measurement: Option<Arc<dyn DynMeasurementModel>>,
     /// The pose covariance to keep with the view.
     pub pose_covariance: Option<DMatrix<f64>>,
+    /// The map-to-sensor transform of this sighting's sensor at `world_from_robot`, when the
+    /// estimator made it beforehand (once per step); made here otherwise.
+    pub to_sensor: Option<&'a MapToSensor>,
 }
 
 impl<P: RobotPose> Track<P> {
@@ -156,10 +159,19 @@ impl<P: RobotPose> Track<P> {
         skips: &mut Skips,
     ) -> Result<()> {
         let observation = sighting.observation;
-        let world_from_sensor = sighting
-            .world_from_robot
-            .world_from_sensor(&observation.robot_from_sensor);
-        let x_o = MapToSensor::new(&world_from_sensor)?.transform(feature.coordinates())?;
+        let (world_from_sensor, x_o) = match sighting.to_sensor {
+            Some(to_sensor) => (
+                *to_sensor.world_from_sensor(),
+                to_sensor.transform(feature.coordinates())?,
+            ),
+            None => {
+                let world_from_sensor = sighting
+                    .world_from_robot
+                    .world_from_sensor(&observation.robot_from_sensor);
+                let x_o = MapToSensor::new(&world_from_sensor)?.transform(feature.coordinates())?;
+                (world_from_sensor, x_o)
+            }
+        };
         let revealed = match observation
             .measurement
             .revealed_subspaces_dyn(feature, &x_o)
@@ -374,18 +386,17 @@ fn stack_priors(priors: &[DMatrix<f64>], added: usize) -> Result<DMatrix<f64>> {
     Ok(block)
 }
 
-/// The change of `feature` outside its M-space that `observation` (seen from
-/// `world_from_robot`) asks for, if any (a wall's extent growing to cover what was measured).
-pub(crate) fn extension_of<P: RobotPose>(
+/// The change of `feature` outside its M-space that `observation` (taken by a sensor at
+/// `world_from_sensor`) asks for, if any (a wall's extent growing to cover what was measured).
+pub(crate) fn extension_of(
     feature: &dyn Feature,
     observation: &Observation,
-    world_from_robot: &P,
+    world_from_sensor: &Pose3,
     skips: &mut Skips,
 ) -> Option<Extension> {
-    let world_from_sensor = world_from_robot.world_from_sensor(&observation.robot_from_sensor);
     match observation
         .measurement
-        .extend_dyn(feature, &world_from_sensor)
+        .extend_dyn(feature, world_from_sensor)
     {
         Ok(extension) => extension,
         Err(_) => {

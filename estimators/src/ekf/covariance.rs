@@ -6,8 +6,8 @@
 //! lower half of `C` once per step (faer's triangular matmul), which is as fast as memory
 //! bandwidth allows (`../shared/DEPENDENCIES.md`: about 3.3 ms at n = 3000).
 
-use faer::linalg::matmul::matmul;
 use faer::linalg::matmul::triangular::{self, BlockStructure};
+use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
 use faer::{Accum, Mat, Par};
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{Error, Result};
@@ -130,16 +130,19 @@ impl StateCovariance {
         }
         let moved = d_pose_d_pose * self.generators.rows(0, d);
         self.generators.rows_mut(0, d).copy_from(&moved);
-        // Rows d.. of columns 0..d hold C_pr = C_rp^T; C_pr <- C_pr J_rr^T.
-        let mut row = vec![0.0; d];
-        for i in d..n {
-            for (k, value) in row.iter_mut().enumerate() {
-                *value = (0..d)
-                    .map(|l| self.lower[(i, l)] * d_pose_d_pose[(k, l)])
-                    .sum();
-            }
-            for (k, value) in row.iter().enumerate() {
-                self.lower[(i, k)] = *value;
+        // Rows d.. of columns 0..d hold C_pr = C_rp^T; C_pr <- C_pr J_rr^T, column by
+        // column (contiguous in the column-major lower triangle).
+        let old: Vec<Vec<f64>> = (0..d)
+            .map(|l| self.lower.col_as_slice(l)[d..n].to_vec())
+            .collect();
+        for k in 0..d {
+            let column = &mut self.lower.col_as_slice_mut(k)[d..n];
+            column.fill(0.0);
+            for (l, old_column) in old.iter().enumerate() {
+                let weight = d_pose_d_pose[(k, l)];
+                for (value, old_value) in column.iter_mut().zip(old_column) {
+                    *value += old_value * weight;
+                }
             }
         }
     }
@@ -210,23 +213,22 @@ impl StateCovariance {
         let cholesky = s
             .cholesky()
             .ok_or_else(|| Error::Singular("innovation covariance S of an EKF update".into()))?;
-        // W = C H^T L^{-T}, with L^{-1} by forward substitution (m^3 / 6 operations, small)
-        // and the n x m x m product in faer.
-        let l_inv = lower_triangular_inverse(&cholesky.l())
-            .ok_or_else(|| Error::Singular("Cholesky factor of S".into()))?;
-        let mut w = Mat::<f64>::zeros(n, m);
-        matmul(
-            &mut w,
-            Accum::Replace,
-            &pht,
-            &to_faer(&l_inv.transpose()),
-            1.0,
-            Par::Seq,
-        );
-        let whitened = &l_inv * eta;
-        let mut dx = DVector::zeros(n);
-        for (i, value) in dx.iter_mut().enumerate() {
-            *value = -(0..m).map(|k| w[(i, k)] * whitened[k]).sum::<f64>();
+        // W = C H^T L^{-T}: W^T = L^{-1} (C H^T)^T by forward substitution, in place on the
+        // transposed view of C H^T (m^2 n / 2 operations, in faer).
+        let l = to_faer(&cholesky.l());
+        if (0..m).any(|i| l[(i, i)] == 0.0) {
+            return Err(Error::Singular("Cholesky factor of S".into()));
+        }
+        let mut w = pht;
+        solve_lower_triangular_in_place(l.as_ref(), w.as_mut().transpose_mut(), Par::Seq);
+        let mut whitened = Mat::<f64>::from_fn(m, 1, |i, _| eta[i]);
+        solve_lower_triangular_in_place(l.as_ref(), whitened.as_mut(), Par::Seq);
+        let mut dx = DVector::<f64>::zeros(n);
+        for k in 0..m {
+            let weight = whitened[(k, 0)];
+            for (value, w_ik) in dx.iter_mut().zip(w.col_as_slice(k)) {
+                *value -= w_ik * weight;
+            }
         }
         if !dx.iter().all(|v| v.is_finite()) {
             return Err(Error::NonFinite("EKF state change".into()));
@@ -357,28 +359,6 @@ pub(crate) struct PreparedUpdate {
     w: Mat<f64>,
     /// The state change `dx` (eq. 31).
     pub(crate) dx: DVector<f64>,
-}
-
-/// The inverse of a lower-triangular matrix by forward substitution, `None` when a diagonal
-/// entry is zero.
-fn lower_triangular_inverse(l: &DMatrix<f64>) -> Option<DMatrix<f64>> {
-    let m = l.nrows();
-    let mut inverse = DMatrix::zeros(m, m);
-    for j in 0..m {
-        // Column j of L^{-1}: solve L x = e_j; x_i = 0 for i < j.
-        for i in j..m {
-            let mut sum = if i == j { 1.0 } else { 0.0 };
-            for k in j..i {
-                sum -= l[(i, k)] * inverse[(k, j)];
-            }
-            let diagonal = l[(i, i)];
-            if diagonal == 0.0 {
-                return None;
-            }
-            inverse[(i, j)] = sum / diagonal;
-        }
-    }
-    Some(inverse)
 }
 
 /// A faer copy of a small nalgebra matrix.

@@ -2,8 +2,6 @@
 //! coordinates (for the observability constraint), the projection that removes them, and the
 //! stacking of pairings into one batch measurement.
 
-use std::collections::{BTreeSet, HashMap};
-
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{CoordBlock, Coordinates, RobotPose};
 
@@ -50,14 +48,12 @@ pub(super) fn project_out(h: &DMatrix<f64>, n: &DMatrix<f64>) -> DMatrix<f64> {
 pub(super) fn stack(
     pairings: &[&Pairing],
 ) -> (Vec<usize>, DMatrix<f64>, DMatrix<f64>, DVector<f64>) {
-    let indices: Vec<usize> = pairings
+    let mut indices: Vec<usize> = pairings
         .iter()
         .flat_map(|p| p.indices.iter().copied())
-        .collect::<BTreeSet<_>>()
-        .into_iter()
         .collect();
-    let position: HashMap<usize, usize> =
-        indices.iter().enumerate().map(|(k, &i)| (i, k)).collect();
+    indices.sort_unstable();
+    indices.dedup();
     let m: usize = pairings.iter().map(|p| p.eta.len()).sum();
     let mut h = DMatrix::zeros(m, indices.len());
     let mut r = DMatrix::zeros(m, m);
@@ -66,7 +62,10 @@ pub(super) fn stack(
     for p in pairings {
         let k = p.eta.len();
         for (column, index) in p.indices.iter().enumerate() {
-            let target = position[index];
+            // Every index of a pairing is in the sorted union.
+            let Ok(target) = indices.binary_search(index) else {
+                continue;
+            };
             for a in 0..k {
                 h[(row + a, target)] += p.h[(a, column)];
             }

@@ -8,7 +8,7 @@ use std::io::Write;
 use std::path::Path;
 
 use slam_core::Pose3;
-use slam_core::nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use slam_core::nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector3};
 
 use super::{Fields, numbered_lines, read_text};
 use crate::error::{Result, SensorError};
@@ -75,7 +75,10 @@ pub fn tum_text(poses: &[StampedPose]) -> String {
 fn write_tum_lines(out: &mut dyn Write, poses: &[StampedPose]) -> std::io::Result<()> {
     writeln!(out, "# timestamp tx ty tz qx qy qz qw")?;
     for p in poses {
-        let q = UnitQuaternion::from_matrix(&p.pose.rotation());
+        // The rotation is orthonormal by construction: no iterative re-orthonormalization.
+        let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
+            p.pose.rotation(),
+        ));
         let t = p.pose.translation;
         writeln!(
             out,

@@ -138,6 +138,7 @@ pub fn stream_victoria_park(dir: &Path, options: &VictoriaParkOptions) -> Result
         in_time_order(&frames_file, observations),
         in_time_order(&gps_file, fixes),
     );
+    let gps_antenna = options.vehicle.gps_antenna();
     let options = options.clone();
     let events = merge_by_time(intervals, points, move |interval, dt| {
         let (speed, steering) = interval.control;
@@ -149,6 +150,7 @@ pub fn stream_victoria_park(dir: &Path, options: &VictoriaParkOptions) -> Result
         name: "Victoria Park".into(),
         clock: Clock::Seconds,
         landmarks: Vec::new(),
+        gps_antenna,
     };
     Ok(EventStream::new(info, events).with_skipped(skipped))
 }

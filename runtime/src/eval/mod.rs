@@ -1,8 +1,10 @@
 //! Evaluation anyone can call: trajectory errors (ATE, RPE, [`trajectory`]), consistency
 //! (NEES, NIS, [`ChiSquareSummary`]) and map error ([`map_error_against_truth`],
-//! [`map_error_against_landmarks`]) and map quality without truth ([`map_quality`]), as functions of plain data (the metrics of a whole run,
+//! [`map_error_against_landmarks`]) and map quality without truth ([`map_quality`],
+//! [`close_landmarks`]), as functions of plain data (the metrics of a whole run,
 //! `metrics.json`, are [`crate::RunMetrics`]).
 
+mod close;
 mod consistency;
 mod map;
 mod map_quality;
@@ -18,6 +20,7 @@ use slam_sensors::data::StampedPose;
 
 use crate::error::Result;
 
+pub use close::{CloseLandmarks, close_landmarks};
 pub use consistency::{
     ChiSquareAccumulator, ChiSquareSummary, Record, chi_square_summary, mean_band_95, pose_nees,
     singular_steps,

@@ -11,15 +11,19 @@ use slam_sensors::laser_odometry::LaserOdometryReport;
 use crate::config::Config;
 use crate::error::Result;
 use crate::eval::{
-    ChiSquareSummary, ErrorStats, MapError, MapQuality, TrajectoryErrors, chi_square_summary,
-    confirmed, feature_counts, map_error_against_landmarks, map_error_against_truth, map_quality,
-    pose_nees, singular_steps, wall_segments,
+    ChiSquareSummary, CloseLandmarks, ErrorStats, MapError, MapQuality, TrajectoryErrors,
+    chi_square_summary, close_landmarks, confirmed, feature_counts, map_error_against_landmarks,
+    map_error_against_truth, map_quality, pose_nees, singular_steps, wall_segments,
 };
 use crate::frontend::FrontendCounts;
 use crate::health::Divergence;
 use crate::record::UpdateTotals;
 use crate::run::InputReport;
 use crate::run::RunOutput;
+
+/// The Mahalanobis distance within which two poles or points count as one landmark mapped
+/// twice (`close_landmarks`).
+const CLOSE_LANDMARK_DISTANCE: f64 = 3.0;
 
 /// Everything in `metrics.json`.
 #[derive(Clone, Debug, Serialize)]
@@ -78,6 +82,10 @@ pub struct RunMetrics {
     /// How well the wall map explains the scans and how much of it is doubled (runs with
     /// laser scans and walls; no truth needed).
     pub map_quality: Option<MapQuality>,
+    /// Pairs of confirmed poles or points within a Mahalanobis distance of 3 of each other
+    /// (landmarks mapped twice), by the estimator's joint covariance when it has one; `null`
+    /// with fewer than two such features.
+    pub close_landmarks: Option<CloseLandmarks>,
     /// Features by type and M-space dimension.
     pub features: BTreeMap<String, BTreeMap<usize, usize>>,
     /// Totals of the update reports.
@@ -164,6 +172,7 @@ impl RunMetrics {
             nees_singular_steps: consistency.singular_steps,
             nis: consistency.nis,
             map_quality: Self::map_quality(output),
+            close_landmarks: close_landmarks(estimator, CLOSE_LANDMARK_DISTANCE),
             features: feature_counts(estimator),
             updates: record.updates,
             skipped: record.skipped.clone(),

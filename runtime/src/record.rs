@@ -36,6 +36,9 @@ pub struct Recorder {
     pub truth: Vec<(f64, Pose2, TruthKind)>,
     /// GPS fixes of the data.
     pub gps: Vec<(f64, Vector2<f64>)>,
+    /// Where the GPS antenna sits in the robot frame (the data's
+    /// [`slam_sensors::DatasetInfo::gps_antenna`]).
+    pub gps_antenna: Vector2<f64>,
     /// NIS of every paired observation.
     pub nis: ChiSquareAccumulator,
     /// Totals of the update reports.
@@ -96,13 +99,18 @@ impl Recorder {
 
     /// ATE of `path` (a map path, or any poses of the run's times) against the run's truth.
     pub fn path_errors(&self, path: &[(f64, Pose2)]) -> Result<Option<TrajectoryErrors>> {
-        path_errors(&self.truth, &self.gps, &stamped(path.iter().copied()))
+        path_errors(
+            &self.truth,
+            &self.gps,
+            &self.gps_antenna,
+            &stamped(path.iter().copied()),
+        )
     }
 
     /// ATE of the recorded estimates against the run's truth (true poses, else reference
     /// poses, else GPS fixes).
     pub fn trajectory_errors(&self) -> Result<Option<TrajectoryErrors>> {
         let estimates = stamped(self.estimates.iter().map(|r| (r.time, r.pose)));
-        path_errors(&self.truth, &self.gps, &estimates)
+        path_errors(&self.truth, &self.gps, &self.gps_antenna, &estimates)
     }
 }

@@ -103,11 +103,15 @@ pub fn run_until(
     let data = config.data.open()?;
     let name = data.events.info.name.clone();
     let landmarks = data.events.info.landmarks.clone();
+    let gps_antenna = data.events.info.gps_antenna;
     let counter = data.events.skip_counter();
     let mut events = data.events;
     let (pose, before_motion) = initial_pose(&mut events)?;
     let (mut session, mut stages) = build(config, pose, &data.sensors)?;
-    let mut record = Recorder::default();
+    let mut record = Recorder {
+        gps_antenna,
+        ..Recorder::default()
+    };
     let mut monitor = DivergenceMonitor::default();
     let limit = match config.data.max_events {
         0 => usize::MAX,

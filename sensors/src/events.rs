@@ -169,6 +169,9 @@ pub struct DatasetInfo {
     pub clock: Clock,
     /// Surveyed or generated landmark positions, when the data have them.
     pub landmarks: Vec<KnownLandmark>,
+    /// Where the GPS antenna sits in the robot frame (x forward, y left), m: the point of the
+    /// robot whose path the [`Event::Gps`] fixes measure. Zero when the data have no GPS.
+    pub gps_antenna: Vector2<f64>,
 }
 
 /// What a reader left out or doubts, shared between a reader and its [`EventStream`] (cloning
@@ -323,6 +326,7 @@ impl EventStream {
             name,
             clock,
             landmarks,
+            gps_antenna: Vector2::zeros(),
         };
         let counter = SkipCounter::new(skipped);
         for (reason, n) in skipped_readings {

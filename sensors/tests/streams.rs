@@ -84,8 +84,19 @@ fn read(input: &Input) -> slam_sensors::Result<Dataset> {
     match input {
         Input::Carmen(path, options) => read_carmen(path, options),
         Input::Rb2d(path) => read_rb2d(path),
-        Input::VictoriaPark(dir) => read_victoria_park(dir, &VictoriaParkOptions::default()),
+        Input::VictoriaPark(dir) => read_victoria_park(dir, &pinned_victoria_park()),
         Input::Mrclam(dir, robot) => read_mrclam(dir, *robot, &MrclamOptions::default()),
+    }
+}
+
+/// The Victoria Park options the fingerprints were taken with (the reader's defaults until
+/// the range and radius deviations became 0.5 m and 0.15 m), so that a change of the defaults
+/// does not change them.
+fn pinned_victoria_park() -> VictoriaParkOptions {
+    VictoriaParkOptions {
+        sigma_range: 0.2,
+        sigma_radius: 0.05,
+        ..VictoriaParkOptions::default()
     }
 }
 
@@ -93,7 +104,7 @@ fn stream(input: &Input) -> slam_sensors::Result<EventStream> {
     match input {
         Input::Carmen(path, options) => stream_carmen(path, options),
         Input::Rb2d(path) => stream_rb2d(path),
-        Input::VictoriaPark(dir) => stream_victoria_park(dir, &VictoriaParkOptions::default()),
+        Input::VictoriaPark(dir) => stream_victoria_park(dir, &pinned_victoria_park()),
         Input::Mrclam(dir, robot) => stream_mrclam(dir, *robot, &MrclamOptions::default()),
     }
 }

@@ -135,6 +135,14 @@ pub trait Estimator<P: RobotPose> {
     /// Covariance of one row group of the map's M-space perturbations, if the estimator has it.
     fn row_covariance(&self, owner: RowOwner) -> Option<DMatrix<f64>>;
 
+    /// Cross-covariance of two row groups (`rows of a x rows of b`), if the estimator keeps
+    /// it (a Gaussian over the whole map does; the default, and a particle filter whose
+    /// features are independent given the path, gives `None`).
+    fn cross_covariance(&self, a: RowOwner, b: RowOwner) -> Option<DMatrix<f64>> {
+        let _ = (a, b);
+        None
+    }
+
     /// Ends one time step (the caller records the estimate once per step): a particle filter
     /// appends each particle's pose to that particle's path. Default: nothing.
     fn end_step(&mut self) {}

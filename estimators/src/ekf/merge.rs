@@ -56,25 +56,55 @@ impl<P: RobotPose> Ekf<P> {
     }
 
     /// The confirmed features of `id`'s kind whose shape overlaps its shape within
-    /// `merge_distance`.
+    /// `merge_distance`, or farther (up to `association_margin`) when the two are so
+    /// uncertain that the joint test could still find them one: within the gate of twice the
+    /// sum of their own coincidence covariances, which bounds the joint one from above.
     fn merge_candidates(&self, id: FeatureId) -> Result<Vec<FeatureId>> {
         let feature = self.map.get(id)?;
         let Some(shape) = feature.shape() else {
             return Ok(Vec::new());
         };
+        let (own, dim) = self.coincidence_variance(id);
+        let gate = self.gates.gate(self.params.merge_probability, dim.max(1))?;
         Ok(self
             .map
             .iter()
             .filter(|(other, f)| {
-                *other != id
-                    && f.kind() == feature.kind()
-                    && self.is_confirmed(*other)
-                    && f.shape()
-                        .and_then(|s| shape.overlap_separation(&s, MERGE_ANGLE))
-                        .is_some_and(|d| d <= self.params.merge_distance)
+                if *other == id || f.kind() != feature.kind() || !self.is_confirmed(*other) {
+                    return false;
+                }
+                let Some(d) = f
+                    .shape()
+                    .and_then(|s| shape.overlap_separation(&s, MERGE_ANGLE))
+                else {
+                    return false;
+                };
+                d <= self.params.merge_distance
+                    || (d <= self.params.association_margin
+                        && d * d <= gate * 2.0 * (own + self.coincidence_variance(*other).0))
             })
             .map(|(other, _)| other)
             .collect())
+    }
+
+    /// A bound on the largest variance of a feature's coincidence residual (the trace of its
+    /// covariance from the feature's own rows, plus `merge_tolerance` squared), in the
+    /// residual's units squared, and the residual's dimension; `(0, 0)` when it has no
+    /// coincidence with itself or no rows.
+    fn coincidence_variance(&self, id: FeatureId) -> (f64, usize) {
+        let Ok(feature) = self.map.get(id) else {
+            return (0.0, 0);
+        };
+        let Ok(Some(coincidence)) = feature.coincidence(feature) else {
+            return (0.0, 0);
+        };
+        let Ok((indices, h)) = self.coordinate_rows(id, &coincidence.d_self) else {
+            return (0.0, 0);
+        };
+        let c = self.cov.gather(&indices, &indices);
+        let dim = coincidence.residual.len();
+        let variance = (&h * c * h.transpose()).trace() + self.params.merge_tolerance.powi(2);
+        (variance, dim)
     }
 
     /// Merges `a` and `b` if they pass the test; returns whether they were merged.
@@ -245,7 +275,7 @@ impl<P: RobotPose> Ekf<P> {
 mod tests {
     use slam_core::nalgebra::{DMatrix, Matrix2, Vector2};
     use slam_core::{Estimator, Observation, Pose2, Pose3};
-    use slam_sensors::models::WallObservation;
+    use slam_sensors::models::{PoleObservation, WallObservation};
 
     use super::super::{Decision, Ekf, EkfParams};
 
@@ -266,7 +296,7 @@ mod tests {
         }
     }
 
-    /// Two walls started from two sightings in one step, with merging on or off.
+    /// Two features started from two sightings in one step, with merging on or off.
     fn two_walls(merge: bool, sightings: [Observation; 2]) -> Ekf<Pose2> {
         let params = EkfParams {
             confirm_after: 1,
@@ -309,6 +339,33 @@ mod tests {
             "the kept wall covers both: {start} {end}"
         );
         assert!((start.y - 2.005).abs() < 0.01 && (end.y - 2.005).abs() < 0.01);
+    }
+
+    /// A tree seen at 10 m range and bearing `bearing` with range and bearing deviations
+    /// `sigmas`.
+    fn tree(bearing: f64, sigmas: [f64; 2]) -> Observation {
+        let measurement =
+            PoleObservation::new(10.0, bearing, 0.2, [sigmas[0], sigmas[1], 0.05]).unwrap();
+        Observation {
+            robot_from_sensor: Pose3::identity(),
+            measurement: Box::new(measurement),
+            landmark_id: None,
+        }
+    }
+
+    /// Two trees 0.8 m apart (beyond `merge_distance`) started from sightings whose
+    /// deviations (1 m, 6 degrees) make them one tree by the joint test: merged. The same
+    /// trees seen with 5 cm and 0.3 degrees are distinct and both stay.
+    #[test]
+    fn uncertain_trees_farther_apart_than_merge_distance_are_merged() {
+        let apart = 0.08; // rad at 10 m: 0.8 m
+        let loose = two_walls(true, [tree(0.0, [1.0, 0.1]), tree(apart, [1.0, 0.1])]);
+        assert_eq!(loose.features_merged(), 1);
+        assert_eq!(loose.map().len(), 1);
+        assert!(is_symmetric_psd(&loose.covariance()));
+        let tight = two_walls(true, [tree(0.0, [0.05, 0.005]), tree(apart, [0.05, 0.005])]);
+        assert_eq!(tight.features_merged(), 0);
+        assert_eq!(tight.map().len(), 2);
     }
 
     /// Two parallel walls 30 cm apart (both sides of a corridor's clutter, a wall and a

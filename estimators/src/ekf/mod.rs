@@ -433,6 +433,10 @@ impl<P: RobotPose> Estimator<P> for Ekf<P> {
             .map(|rows| self.cov.gather(rows, rows))
     }
 
+    fn cross_covariance(&self, a: RowOwner, b: RowOwner) -> Option<DMatrix<f64>> {
+        Some(self.cov.gather(self.rows.get(&a)?, self.rows.get(&b)?))
+    }
+
     fn landmark_id(&self, id: FeatureId) -> Option<u64> {
         self.tracks.get(&id).and_then(|t| t.landmark_id)
     }

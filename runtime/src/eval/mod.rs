@@ -1,8 +1,10 @@
 //! Evaluation anyone can call: trajectory errors (ATE, RPE, [`trajectory`]), consistency
 //! (NEES, NIS, [`ChiSquareSummary`]) and map error ([`map_error_against_truth`],
-//! [`map_error_against_landmarks`]) and map quality without truth ([`map_quality`]), as functions of plain data (the metrics of a whole run,
+//! [`map_error_against_landmarks`]) and map quality without truth ([`map_quality`],
+//! [`close_landmarks`]), as functions of plain data (the metrics of a whole run,
 //! `metrics.json`, are [`crate::RunMetrics`]).
 
+mod close;
 mod consistency;
 mod map;
 mod map_quality;
@@ -18,6 +20,7 @@ use slam_sensors::data::StampedPose;
 
 use crate::error::Result;
 
+pub use close::{CloseLandmarks, close_landmarks};
 pub use consistency::{
     ChiSquareAccumulator, ChiSquareSummary, Record, chi_square_summary, mean_band_95, pose_nees,
     singular_steps,
@@ -69,10 +72,13 @@ pub fn true_poses(truth: &[(f64, Pose2, TruthKind)]) -> BTreeMap<u64, Pose2> {
 }
 
 /// ATE of `est` against a run's truth poses (`True` preferred, else `Reference`, else the
-/// GPS fixes `gps`, paired within half a second); `None` when fewer than 3 poses pair.
+/// GPS fixes `gps`, paired within half a second); `None` when fewer than 3 poses pair. Against
+/// GPS fixes the estimate's point compared is the antenna's, `gps_antenna` in the robot frame
+/// ([`slam_sensors::DatasetInfo::gps_antenna`]).
 pub fn path_errors(
     truth: &[(f64, Pose2, TruthKind)],
     gps: &[(f64, Vector2<f64>)],
+    gps_antenna: &Vector2<f64>,
     est: &[StampedPose],
 ) -> Result<Option<TrajectoryErrors>> {
     let of_kind = |kind: TruthKind| -> Vec<StampedPose> {
@@ -90,11 +96,29 @@ pub fn path_errors(
             pose: slam_core::Pose3::new(Vector3::new(p.x, p.y, 0.0), 0.0, 0.0, 0.0),
         })
         .collect();
-    let (gt, against, max_dt) = match of_kind(TruthKind::True) {
-        gt if !gt.is_empty() => (gt, "ground truth", 1e-6),
+    let antenna = slam_core::Pose3::new(
+        Vector3::new(gps_antenna.x, gps_antenna.y, 0.0),
+        0.0,
+        0.0,
+        0.0,
+    );
+    let at_antenna: Vec<StampedPose>;
+    let (gt, against, max_dt, est) = match of_kind(TruthKind::True) {
+        gt if !gt.is_empty() => (gt, "ground truth", 1e-6, est),
         _ => match of_kind(TruthKind::Reference) {
-            reference if !reference.is_empty() => (reference, "reference poses of the data", 1e-6),
-            _ => (gps, "GPS fixes (positions only)", 0.5),
+            reference if !reference.is_empty() => {
+                (reference, "reference poses of the data", 1e-6, est)
+            }
+            _ => {
+                at_antenna = est
+                    .iter()
+                    .map(|s| StampedPose {
+                        time: s.time,
+                        pose: s.pose.compose(&antenna),
+                    })
+                    .collect();
+                (gps, "GPS fixes (positions only)", 0.5, &at_antenna[..])
+            }
         },
     };
     if gt.len() < 3 {
@@ -113,4 +137,40 @@ pub fn path_errors(
         against,
         alignment: aligned.alignment,
     }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// GPS fixes taken at an antenna 3 m ahead of the robot origin, on a path that drives
+    /// out and back on two parallel lanes: compared at the antenna the estimate matches them
+    /// exactly; compared at the robot origin no rigid alignment can hide the offset (it points
+    /// one way on the way out and the other way back).
+    #[test]
+    fn gps_fixes_are_compared_at_the_antenna() {
+        let antenna = Vector2::new(3.0, 0.5);
+        let poses: Vec<(f64, Pose2)> = (0..40)
+            .map(|k| {
+                let (x, y, theta) = if k < 20 {
+                    (k as f64, 0.0, 0.0)
+                } else {
+                    ((39 - k) as f64, 10.0, std::f64::consts::PI)
+                };
+                (k as f64, Pose2::new(x, y, theta))
+            })
+            .collect();
+        let gps: Vec<(f64, Vector2<f64>)> = poses
+            .iter()
+            .map(|(t, p)| (*t, p.transform_point(&antenna)))
+            .collect();
+        let est = stamped(poses.iter().copied());
+        let at_antenna = path_errors(&[], &gps, &antenna, &est).unwrap().unwrap();
+        let at_origin = path_errors(&[], &gps, &Vector2::zeros(), &est)
+            .unwrap()
+            .unwrap();
+        assert_eq!(at_antenna.against, "GPS fixes (positions only)");
+        assert!(at_antenna.ate_rmse_m < 1e-9, "{}", at_antenna.ate_rmse_m);
+        assert!(at_origin.ate_rmse_m > 2.0, "{}", at_origin.ate_rmse_m);
+    }
 }

@@ -217,6 +217,7 @@ pub fn stream_carmen(path: &Path, options: &CarmenOptions) -> Result<EventStream
         name,
         clock,
         landmarks: Vec::new(),
+        gps_antenna: slam_core::nalgebra::Vector2::zeros(),
     };
     let reader = CarmenReader {
         lines,

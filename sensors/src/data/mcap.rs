@@ -268,6 +268,7 @@ pub fn stream_mcap(path: &Path, options: &McapOptions) -> Result<EventStream> {
         name,
         clock: Clock::Seconds,
         landmarks: Vec::new(),
+        gps_antenna: slam_core::nalgebra::Vector2::zeros(),
     };
     let state = McapReader {
         path: path.to_path_buf(),

@@ -132,6 +132,7 @@ pub fn stream_mrclam(dir: &Path, robot: u8, options: &MrclamOptions) -> Result<E
         name: format!("MR.CLAM robot {robot}"),
         clock: Clock::Seconds,
         landmarks,
+        gps_antenna: slam_core::nalgebra::Vector2::zeros(),
     };
     Ok(EventStream::new(info, events).with_skipped(skipped))
 }

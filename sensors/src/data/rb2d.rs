@@ -178,6 +178,7 @@ pub fn stream_rb2d(path: &Path) -> Result<EventStream> {
         name,
         clock: Clock::Seconds,
         landmarks,
+        gps_antenna: slam_core::nalgebra::Vector2::zeros(),
     };
     let skipped = SkipCounter::default();
     let reader = Rb2dReader {

@@ -45,11 +45,15 @@ pub struct VictoriaParkOptions {
     pub sigma_speed: f64,
     /// Standard deviation of the steering angle, rad. Default 3 degrees.
     pub sigma_steering: f64,
-    /// Standard deviation of a trunk's range, m. Default 0.2.
+    /// Standard deviation of a trunk's range, m. Default 0.5: the detector's range is the
+    /// middle beam's plus half the trunk width it measured, so it carries the width's error
+    /// and the trunk's shape; the reference EKF codes on this dataset use 0.5-1 m.
     pub sigma_range: f64,
     /// Standard deviation of a trunk's bearing, rad. Default 1 degree.
     pub sigma_bearing: f64,
-    /// Standard deviation of a trunk's radius, m. Default 0.05.
+    /// Standard deviation of a trunk's radius, m. Default 0.15: the width is counted in
+    /// 0.5-degree beams (a step of 0.4 m in diameter at 50 m), and a trunk seen from another
+    /// side or height is wider or narrower; the radius only decides association.
     pub sigma_radius: f64,
 }
 
@@ -59,9 +63,9 @@ impl Default for VictoriaParkOptions {
             vehicle: AckermannParams::default(),
             sigma_speed: 0.5,
             sigma_steering: 3f64.to_radians(),
-            sigma_range: 0.2,
+            sigma_range: 0.5,
             sigma_bearing: 1f64.to_radians(),
-            sigma_radius: 0.05,
+            sigma_radius: 0.15,
         }
     }
 }
@@ -138,6 +142,7 @@ pub fn stream_victoria_park(dir: &Path, options: &VictoriaParkOptions) -> Result
         in_time_order(&frames_file, observations),
         in_time_order(&gps_file, fixes),
     );
+    let gps_antenna = options.vehicle.gps_antenna();
     let options = options.clone();
     let events = merge_by_time(intervals, points, move |interval, dt| {
         let (speed, steering) = interval.control;
@@ -149,6 +154,7 @@ pub fn stream_victoria_park(dir: &Path, options: &VictoriaParkOptions) -> Result
         name: "Victoria Park".into(),
         clock: Clock::Seconds,
         landmarks: Vec::new(),
+        gps_antenna,
     };
     Ok(EventStream::new(info, events).with_skipped(skipped))
 }

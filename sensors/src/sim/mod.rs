@@ -129,6 +129,7 @@ pub fn simulate_stream(world: &World, seed: u64) -> Result<SimulatedStream> {
         name: format!("simulated {}", world.name),
         clock: Clock::Seconds,
         landmarks: landmarks.clone(),
+        gps_antenna: slam_core::nalgebra::Vector2::zeros(),
     };
     let steps = Steps {
         world: world.clone(),

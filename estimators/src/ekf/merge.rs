@@ -16,7 +16,7 @@
 //! is never the one removed, and two such features are not merged.
 
 use slam_core::nalgebra::{DMatrix, DVector};
-use slam_core::{Error, FeatureId, Result, RobotPose, RowOwner};
+use slam_core::{Error, FeatureId, Result, RobotPose, RowOwner, Shape};
 
 use super::Ekf;
 use super::jacobians::project_out;
@@ -56,14 +56,22 @@ impl<P: RobotPose> Ekf<P> {
     }
 
     /// The confirmed features of `id`'s kind whose shape overlaps its shape within
-    /// `merge_distance`, or farther (up to `association_margin`) when the two are so
-    /// uncertain that the joint test could still find them one: within the gate of twice the
-    /// sum of their own coincidence covariances, which bounds the joint one from above.
+    /// `merge_distance`, or, for point-like features (trees, points), farther (up to
+    /// `association_margin`) when the two are so uncertain that the joint test could still
+    /// find them one: within the gate of twice the sum of their own coincidence covariances,
+    /// which bounds the joint one from above. Segments (walls, lines) never go beyond
+    /// `merge_distance`: a newly confirmed wall is uncertain mostly through the pose that
+    /// placed it, and merging it with a wall 30 cm away on that ground turned the path by
+    /// degrees on a real log (freiburg-079).
     fn merge_candidates(&self, id: FeatureId) -> Result<Vec<FeatureId>> {
         let feature = self.map.get(id)?;
         let Some(shape) = feature.shape() else {
             return Ok(Vec::new());
         };
+        let point_like = matches!(
+            shape,
+            Shape::Pole { .. } | Shape::Point { .. } | Shape::PlanarPoint { .. }
+        );
         let (own, dim) = self.coincidence_variance(id);
         let gate = self.gates.gate(self.params.merge_probability, dim.max(1))?;
         Ok(self
@@ -80,7 +88,8 @@ impl<P: RobotPose> Ekf<P> {
                     return false;
                 };
                 d <= self.params.merge_distance
-                    || (d <= self.params.association_margin
+                    || (point_like
+                        && d <= self.params.association_margin
                         && d * d <= gate * 2.0 * (own + self.coincidence_variance(*other).0))
             })
             .map(|(other, _)| other)
@@ -281,10 +290,15 @@ mod tests {
 
     /// A wall seen from the origin along `y = offset`, from `x = a` to `x = b`.
     fn sighting(offset: f64, a: f64, b: f64) -> Observation {
+        sighting_with(offset, a, b, Matrix2::new(1e-4, 0.0, 0.0, 4e-4))
+    }
+
+    /// [`sighting`] with the segment's covariance `covariance`.
+    fn sighting_with(offset: f64, a: f64, b: f64, covariance: Matrix2<f64>) -> Observation {
         let measurement = WallObservation::from_segment(
             Vector2::new(a, offset),
             Vector2::new(b, offset),
-            Matrix2::new(1e-4, 0.0, 0.0, 4e-4),
+            covariance,
             [false, false],
             [0.05, 0.05],
         )
@@ -373,6 +387,23 @@ mod tests {
     #[test]
     fn distinct_parallel_walls_stay_apart() {
         let ekf = two_walls(true, [sighting(2.0, 0.0, 3.0), sighting(2.3, 1.0, 4.0)]);
+        assert_eq!(ekf.features_merged(), 0);
+        assert_eq!(ekf.map().len(), 2);
+    }
+
+    /// Two uncertain parallel walls 0.8 m apart (beyond `merge_distance`) whose joint test
+    /// alone would call them one are not merged: a segment's uncertainty is mostly the pose
+    /// that placed it, and merging on that ground bends the path (uncertain trees are, above).
+    #[test]
+    fn uncertain_walls_farther_apart_than_merge_distance_stay_apart() {
+        let loose = Matrix2::new(0.5, 0.0, 0.0, 0.05);
+        let ekf = two_walls(
+            true,
+            [
+                sighting_with(2.0, 0.0, 3.0, loose),
+                sighting_with(2.8, 0.0, 3.0, loose),
+            ],
+        );
         assert_eq!(ekf.features_merged(), 0);
         assert_eq!(ekf.map().len(), 2);
     }

@@ -241,3 +241,141 @@ fn a_tilted_laser_is_an_error() {
         .to_string();
     assert!(message.contains("level laser"), "{message}");
 }
+
+/// A 180-beam sweep along the hall `y in [-5, 5]`, 12 m long, from `pose` (sensor frame);
+/// beams that leave it at its ends are dropped.
+fn corridor_scan(pose: &Pose2) -> Vec<Vector2<f64>> {
+    (0..180)
+        .filter_map(|i| {
+            let bearing = (-90.0 + i as f64).to_radians();
+            let heading = pose.theta + bearing;
+            let u = Vector2::new(heading.cos(), heading.sin());
+            let wall = if u.y > 0.0 { 5.0 } else { -5.0 };
+            let range = (wall - pose.y) / u.y;
+            let x = pose.x + range * u.x;
+            (range.is_finite() && range > 0.0 && (0.0..=12.0).contains(&x))
+                .then(|| Vector2::new(range * bearing.cos(), range * bearing.sin()))
+        })
+        .collect()
+}
+
+/// Far points of a wall seen at a slant lie farther apart than the gate: with a reach that
+/// grows with the range they keep their normals (and stay in the reference), and those
+/// normals are the wall's.
+#[test]
+fn far_points_keep_their_normals_with_a_range_scaled_reach() {
+    let points = corridor_scan(&Pose2::new(1.0, 0.0, 0.0));
+    let fixed = LaserOdometryParams::default();
+    let scaled = LaserOdometryParams {
+        normal_reach_per_metre: 0.1,
+        ..LaserOdometryParams::default()
+    };
+    let far = |reference: &[(Vector2<f64>, Vector2<f64>)]| {
+        reference.iter().filter(|(p, _)| p.norm() > 8.0).count()
+    };
+    let with_gate = with_normals(&points, &fixed);
+    let with_reach = with_normals(&points, &scaled);
+    let far_points = points.iter().filter(|p| p.norm() > 8.0).count();
+    assert!(far_points > 10, "{far_points}");
+    assert!(2 * far(&with_gate) < far_points, "{with_gate:?}");
+    // Points within two beams of the view's far end have too few neighbours.
+    assert!(
+        far(&with_reach) + 4 >= far_points,
+        "{} of {far_points}",
+        far(&with_reach)
+    );
+    for (p, n) in &with_reach {
+        assert!(n.y.abs() > 0.999, "normal {n:?} at {p:?}");
+    }
+}
+
+/// A guess turned 35 degrees from the truth finds no match from the guess alone (too few
+/// points pair up at the gate); with starting headings 4 degrees apart on each side the match
+/// finds the truth.
+#[test]
+fn extra_starting_headings_recover_a_large_heading_error() {
+    let before = Pose2::new(2.0, 3.0, 0.1);
+    let after = Pose2::new(2.6, 3.2, 0.5);
+    let truth = before.between(&after);
+    let guess = Pose2::new(truth.x, truth.y, truth.theta + 35f64.to_radians());
+    let prior = Matrix3::from_diagonal(&Vector3::new(0.04, 0.04, 0.6f64.powi(2)));
+    let run = |heading_starts: usize| {
+        let params = LaserOdometryParams {
+            heading_starts,
+            heading_start_step_deg: 4.0,
+            ..LaserOdometryParams::default()
+        };
+        match_scans(&scan(&before), &scan(&after), &guess, &prior, &params)
+            .unwrap()
+            .map(|m| m.reference_from_current)
+    };
+    let error = |m: Pose2| wrap_angle(m.theta - truth.theta).abs().to_degrees();
+    let single = run(0);
+    assert!(
+        single.is_none_or(|m| error(m) > 1.0),
+        "{single:?} vs {truth:?}"
+    );
+    let several = run(10).unwrap();
+    assert!(error(several) < 0.1, "{several:?} vs {truth:?}");
+    assert!((several.translation() - truth.translation()).norm() < 5e-3);
+}
+
+/// With the normal check on, the known motion is still recovered, and points pair only with
+/// reference points on surfaces facing their own way: a scan matched to itself turned by 90
+/// degrees (every wall then faces across its partner) pairs fewer points than without it.
+#[test]
+fn the_normal_check_keeps_the_match_and_refuses_crossed_surfaces() {
+    let before = Pose2::new(2.0, 3.0, 0.1);
+    let after = Pose2::new(2.8, 3.3, 0.35);
+    let truth = before.between(&after);
+    let guess = Pose2::new(truth.x + 0.12, truth.y - 0.08, truth.theta + 0.06);
+    let checked = LaserOdometryParams {
+        max_normal_angle_deg: 30.0,
+        ..LaserOdometryParams::default()
+    };
+    let m = match_scans(
+        &scan(&before),
+        &scan(&after),
+        &guess,
+        &wide_prior(),
+        &checked,
+    )
+    .unwrap()
+    .unwrap()
+    .reference_from_current;
+    assert!(
+        (m.translation() - truth.translation()).norm() < 5e-3,
+        "{m:?}"
+    );
+    assert!((m.theta - truth.theta).abs() < 1e-3, "{m:?}");
+    let points = scan(&before);
+    let reference = with_normals(&points, &checked);
+    let turned = Pose2::new(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+    let pairs = |params: &LaserOdometryParams| {
+        let problem = MatchProblem {
+            reference: &reference,
+            current: &points,
+            current_normals: normals(&points, params.gate, params.normal_reach_per_metre),
+            min_normal_cosine: params.max_normal_angle_deg.to_radians().cos(),
+            guess: &turned,
+            prior_information: Matrix3::identity(),
+            params,
+            grids: std::cell::RefCell::new(Vec::new()),
+        };
+        problem.minimise(turned, 2, 3).map_or(0, |m| m.matched)
+    };
+    let unchecked = LaserOdometryParams {
+        min_matched: 3,
+        ..LaserOdometryParams::default()
+    };
+    let checked = LaserOdometryParams {
+        min_matched: 3,
+        ..checked
+    };
+    assert!(
+        pairs(&checked) < pairs(&unchecked) / 2,
+        "{} {}",
+        pairs(&checked),
+        pairs(&unchecked)
+    );
+}

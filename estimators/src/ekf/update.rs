@@ -98,7 +98,12 @@ impl<P: RobotPose> Ekf<P> {
                             }
                             None => self.skips.count("NIS: singular innovation covariance"),
                         }
-                        batch.push(pairing);
+                        if self.seen_from_the_last_update_viewpoint(id) {
+                            self.skips
+                                .count("update: seen again from nearly the same viewpoint");
+                        } else {
+                            batch.push(pairing);
+                        }
                     }
                     self.note_sighting(id, observation)?;
                     if self.grow(id, observation)? {
@@ -124,6 +129,26 @@ impl<P: RobotPose> Ekf<P> {
             }
         }
         Ok(batch)
+    }
+
+    /// Whether confirmed feature `id` was last updated from a pose within
+    /// `reupdate_distance` and `reupdate_angle` of the current one; if not, the current pose
+    /// becomes its last update's. A wall seen again from where it was just seen carries the
+    /// same systematic error (the same clutter, the same fit), which independent updates
+    /// would count again and again: the feature and the pose become overconfident, and a
+    /// later view from elsewhere that disagrees turns the robot instead of the wall.
+    fn seen_from_the_last_update_viewpoint(&mut self, id: FeatureId) -> bool {
+        let (distance, angle) = (self.params.reupdate_distance, self.params.reupdate_angle);
+        let pose = self.pose;
+        let track = self.tracks.entry(id).or_default();
+        let near = track.last_update.is_some_and(|last| {
+            let (moved, turned) = pose.distance_and_angle(&last);
+            moved < distance && turned < angle
+        });
+        if !near {
+            track.last_update = Some(pose);
+        }
+        near
     }
 
     /// One batch update (eqs. 28-32, 24). A state change that some feature cannot take (it
@@ -351,5 +376,76 @@ impl<P: RobotPose> Ekf<P> {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use slam_core::nalgebra::{DMatrix, Matrix2, Vector2};
+    use slam_core::{Estimator, Observation, Pose2, Pose3};
+    use slam_sensors::models::WallObservation;
+
+    use super::super::{Ekf, EkfParams};
+
+    /// The wall `y = 2`, from `x = -1` to `x = 3`, seen from a robot at `(x, 0, 0)`.
+    fn wall_from(x: f64) -> Vec<Observation> {
+        let measurement = WallObservation::from_segment(
+            Vector2::new(-1.0 - x, 2.0),
+            Vector2::new(3.0 - x, 2.0),
+            Matrix2::new(1e-4, 0.0, 0.0, 4e-4),
+            [false, false],
+            [0.05, 0.05],
+        )
+        .unwrap();
+        vec![Observation {
+            robot_from_sensor: Pose3::identity(),
+            measurement: Box::new(measurement),
+            landmark_id: None,
+        }]
+    }
+
+    /// The pose's lateral variance after seeing the wall from `x = 0` four times (confirmed
+    /// at the third), after once more from `x = 0` and after once from `x = later`; and the
+    /// count of sightings not updated with.
+    fn lateral_variances(reupdate_distance: f64, later: f64) -> (f64, f64, f64, usize) {
+        let params = EkfParams {
+            reupdate_distance,
+            reupdate_angle: 0.1,
+            ..EkfParams::default()
+        };
+        let mut ekf = Ekf::new(Pose2::identity(), DMatrix::identity(3, 3) * 1e-2, params).unwrap();
+        for _ in 0..4 {
+            ekf.update(&wall_from(0.0)).unwrap();
+        }
+        let first = ekf.pose_covariance()[(1, 1)];
+        let mut report = ekf.update(&wall_from(0.0)).unwrap();
+        let again = ekf.pose_covariance()[(1, 1)];
+        ekf.pose = Pose2::new(later, 0.0, 0.0);
+        report
+            .skipped
+            .merge(&ekf.update(&wall_from(later)).unwrap().skipped);
+        let skipped = report
+            .skipped
+            .iter()
+            .filter(|(what, _)| what.contains("nearly the same viewpoint"))
+            .map(|(_, n)| n)
+            .sum();
+        (first, again, ekf.pose_covariance()[(1, 1)], skipped)
+    }
+
+    /// With `reupdate_distance` a wall seen again from where it was last updated does not
+    /// update the filter; seen from farther away it does. Without it every sighting updates.
+    #[test]
+    fn a_feature_is_updated_again_only_from_a_new_viewpoint() {
+        let (first, again, moved, skipped) = lateral_variances(0.3, 0.5);
+        assert_eq!(again, first);
+        assert!(moved < again, "{moved} {again}");
+        assert_eq!(skipped, 1);
+        let (_, again, same_place, skipped) = lateral_variances(0.3, 0.1);
+        assert_eq!(same_place, again);
+        assert_eq!(skipped, 2);
+        let (first, every, _, skipped) = lateral_variances(0.0, 0.0);
+        assert!(every < first, "{every} {first}");
+        assert_eq!(skipped, 0);
     }
 }

@@ -95,6 +95,8 @@ pub(crate) struct Track<P> {
     pub views: Vec<View<P>>,
     /// The data's landmark id, when known.
     pub landmark_id: Option<u64>,
+    /// The robot pose of the last update with this feature (the EKF's `reupdate_distance`).
+    pub last_update: Option<P>,
 }
 
 impl<P> Default for Track<P> {
@@ -105,6 +107,7 @@ impl<P> Default for Track<P> {
             revealed: BTreeMap::new(),
             views: Vec::new(),
             landmark_id: None,
+            last_update: None,
         }
     }
 }

@@ -80,7 +80,9 @@ pub struct LaserOdometryParams {
     /// scans ends 0.35-0.91 m from the reference (SE(2)-aligned ATE) with 0.1, against
     /// 0.66-2.69 m with 0 (BENCHMARKS.md, "Real buildings").
     pub normal_reach_per_metre: f64,
-    /// Extra starting headings on each side of the odometry's (0: the odometry's only) ...
+    /// Extra starting headings on each side of the odometry's, at most (0: the odometry's
+    /// only); a match tries only those within three standard deviations of the odometry's
+    /// heading (none after a short, straight motion) ...
     pub heading_starts: usize,
     /// ... this far apart, degrees; the match is the lowest of the minima reached.
     pub heading_start_step_deg: f64,
@@ -316,9 +318,10 @@ pub fn match_scans(
 /// [`match_scans`] with the reference given as points with unit normals (e.g. a local map of
 /// several scans, all in one frame): `current`'s pose in that frame. With
 /// `heading_starts > 0` the same objective is minimised from the guess and from the guess
-/// turned by `±k * heading_start_step_deg` (k = 1..=heading_starts), and the lowest minimum
-/// wins: a large turn whose odometry heading is a few degrees off no longer ends in a nearby
-/// local minimum.
+/// turned by `±k * heading_start_step_deg` (k = 1..=K: the turns within three standard
+/// deviations of the guess's heading, at most `heading_starts`), and the lowest
+/// minimum wins: a large turn whose odometry heading is a few degrees off no longer ends in a
+/// nearby local minimum.
 fn match_to_points(
     reference: &[(Vector2<f64>, Vector2<f64>)],
     current: &[Vector2<f64>],
@@ -346,13 +349,17 @@ fn match_to_points(
         grids: std::cell::RefCell::new(Vec::new()),
     };
     let step = params.heading_start_step_deg.to_radians();
+    let heading_sigma = guess_covariance[(2, 2)].max(0.0).sqrt();
+    let starts = params
+        .heading_starts
+        .min((3.0 * heading_sigma / step).floor() as usize);
     // Every start runs until the gate has narrowed to its final width; the best one by the
     // objective there goes on to convergence.
     let mut best: Option<Minimum> = None;
-    for k in 0..=params.heading_starts {
+    for k in 0..=starts {
         for sign in if k == 0 { &[1.0][..] } else { &[1.0, -1.0][..] } {
             let start = Pose2::new(guess.x, guess.y, guess.theta + sign * k as f64 * step);
-            let iterations = if params.heading_starts == 0 {
+            let iterations = if starts == 0 {
                 params.iterations
             } else {
                 params.iterations.min(SCREENING_ITERATIONS)
@@ -364,7 +371,7 @@ fn match_to_points(
             }
         }
     }
-    if params.heading_starts > 0 && params.iterations > SCREENING_ITERATIONS {
+    if starts > 0 && params.iterations > SCREENING_ITERATIONS {
         best = match best {
             Some(screened) => {
                 problem.minimise(screened.pose, SCREENING_ITERATIONS, params.iterations)

@@ -379,3 +379,24 @@ fn the_normal_check_keeps_the_match_and_refuses_crossed_surfaces() {
         pairs(&unchecked)
     );
 }
+
+/// Starting headings beyond three standard deviations of the guess's heading are not tried:
+/// with a sure heading the match is the single-start one, bit for bit.
+#[test]
+fn a_sure_heading_needs_no_extra_starts() {
+    let before = Pose2::new(2.0, 3.0, 0.1);
+    let after = Pose2::new(2.3, 3.1, 0.12);
+    let guess = before.between(&after);
+    let prior = Matrix3::from_diagonal(&Vector3::new(0.01, 0.01, 0.005f64.powi(2)));
+    let run = |heading_starts: usize| {
+        let params = LaserOdometryParams {
+            heading_starts,
+            ..LaserOdometryParams::default()
+        };
+        match_scans(&scan(&before), &scan(&after), &guess, &prior, &params)
+            .unwrap()
+            .unwrap()
+            .reference_from_current
+    };
+    assert_eq!(run(5).to_vector(), run(0).to_vector());
+}

@@ -34,6 +34,10 @@ pub const END: Subspace = Subspace {
                   of the wall (a corner or an edge, not an occlusion or the field of view)",
 };
 
+/// Smallest angle between two walls that share a corner, degrees (the laser front-end's
+/// default `min_corner_angle`, `slam_sensors::LineExtractorParams`).
+pub const MIN_CORNER_ANGLE_DEG: f64 = 30.0;
+
 /// Normal motion of the free endpoint about a shared corner, scaled by L/L_s (eq. 33).
 pub const PIVOT: Subspace = Subspace {
     name: "pivot",
@@ -587,6 +591,16 @@ impl Feature for Wall {
         self.shared.get(index).copied().unwrap_or(false)
     }
 
+    /// Only another wall at least [`MIN_CORNER_ANGLE_DEG`] from parallel: two nearly
+    /// parallel walls with a common end are one wall mapped twice (folded onto itself) or a
+    /// wall continued past a gap, and a corner between them would pin a wall's direction to
+    /// a point on the other.
+    fn may_share_with(&self, _index: usize, other: &dyn Feature, _other_index: usize) -> bool {
+        downcast_feature::<Wall>(other).is_some_and(|other| {
+            self.tangent().perp(&other.tangent()).abs() >= MIN_CORNER_ANGLE_DEG.to_radians().sin()
+        })
+    }
+
     /// Re-parameterizes for a shared corner at endpoint `index` (eq. 33): `"line"` becomes
     /// `"pivot"` about the corner, and the corner's tangential row moves to the shared block.
     /// With the second corner shared the pivot goes too: the wall has no own rows.
@@ -622,6 +636,34 @@ mod tests {
 
     fn wall() -> Wall {
         Wall::new(Vector2::new(1.0, 1.0), Vector2::new(5.0, 1.0)).unwrap()
+    }
+
+    /// A corner needs an angle: a wall at 90 or 35 degrees may share the end, a wall folded
+    /// back onto this one or continuing it at 10 degrees may not, and a pole never.
+    #[test]
+    fn walls_share_a_corner_only_at_an_angle() {
+        let end = Vector2::new(5.0, 1.0);
+        let at = |degrees: f64| {
+            let direction = Vector2::new(degrees.to_radians().cos(), degrees.to_radians().sin());
+            Wall::new(end, end + 3.0 * direction).unwrap()
+        };
+        let this = wall();
+        for (degrees, allowed) in [(90.0, true), (35.0, true), (-145.0, true), (10.0, false)] {
+            assert_eq!(
+                this.may_share_with(1, &at(degrees), 0),
+                allowed,
+                "{degrees} degrees"
+            );
+            assert_eq!(
+                at(degrees).may_share_with(0, &this, 1),
+                allowed,
+                "{degrees} degrees"
+            );
+        }
+        let folded = Wall::new(Vector2::new(1.2, 1.08), end).unwrap();
+        assert!(!this.may_share_with(1, &folded, 1));
+        let pole = crate::Pole::new(0.1, end).unwrap();
+        assert!(!this.may_share_with(1, &pole, 0));
     }
 
     #[test]

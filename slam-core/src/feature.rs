@@ -175,6 +175,16 @@ pub trait Feature: dyn_clone::DynClone + Debug + Send + Sync + Any {
         Vec::new()
     }
 
+    /// Whether block `index` of this feature and block `other_index` of `other` may become
+    /// one shared block at all, whatever their values (two walls meet in a corner only at an
+    /// angle: nearly parallel walls sharing an end are one wall drawn twice or a wall
+    /// continued, not a corner). The estimator still tests that the blocks are the same
+    /// point. Default: yes.
+    fn may_share_with(&self, index: usize, other: &dyn Feature, other_index: usize) -> bool {
+        let _ = (index, other, other_index);
+        true
+    }
+
     /// Whether block `index` is currently shared.
     fn is_shared(&self, index: usize) -> bool {
         let _ = index;

@@ -1,5 +1,7 @@
 //! Which blocks of two features may become one shared corner (paper section VI): both
-//! shareable, free, fully estimated, of one kind and within `corner_distance` of each other.
+//! shareable, free, fully estimated, of one kind, within `corner_distance` of each other and
+//! allowed by the features themselves ([`slam_core::Feature::may_share_with`]: walls at an
+//! angle).
 //! The statistical test and the re-parameterization of the covariance are the estimator's
 //! (`crate::ekf`).
 
@@ -28,8 +30,8 @@ pub(crate) fn block_estimated(feature: &dyn Feature, k: usize) -> Result<bool> {
 }
 
 /// The free shareable blocks of block `k` of feature `id` could join with: blocks of other
-/// confirmed features, of the same kind, within `corner_distance`, not shared yet and fully
-/// estimated, in map order.
+/// confirmed features, of the same kind, within `corner_distance`, not shared yet, fully
+/// estimated and allowed by both features, in map order.
 pub(crate) fn corner_partners(
     map: &FeatureMap,
     id: FeatureId,
@@ -37,7 +39,8 @@ pub(crate) fn corner_partners(
     corner_distance: f64,
     confirmed: &dyn Fn(FeatureId) -> bool,
 ) -> Result<Vec<(FeatureId, usize)>> {
-    let value = map.get(id)?.coordinates().blocks()[k];
+    let this = map.get(id)?;
+    let value = this.coordinates().blocks()[k];
     let here = BoundingBox::of(&Coordinates::new(vec![value])?);
     let mut partners = Vec::new();
     for (other, feature) in map.iter() {
@@ -49,7 +52,11 @@ pub(crate) fn corner_partners(
         }
         for j in feature.shareable_blocks() {
             let block = feature.coordinates().blocks()[j];
-            if block.kind() != value.kind() || distance(&block, &value) > corner_distance {
+            if block.kind() != value.kind()
+                || distance(&block, &value) > corner_distance
+                || !this.may_share_with(k, feature, j)
+                || !feature.may_share_with(j, this, k)
+            {
                 continue;
             }
             if map.links(other)?[j].is_none() && block_estimated(feature, j)? {

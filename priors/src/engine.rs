@@ -790,16 +790,18 @@ fn jacobi<const N: usize>(m: &mut [[f64; N]; N], v: &mut [[f64; N]; N], k: usize
         if k == 4 {
             // The engine's windows (priors of order 2): the six rotations with constant
             // indices, so the loops unroll and the bounds checks go.
-            rotate(m, v, 0, 1, 4);
-            rotate(m, v, 0, 2, 4);
-            rotate(m, v, 0, 3, 4);
-            rotate(m, v, 1, 2, 4);
-            rotate(m, v, 1, 3, 4);
-            rotate(m, v, 2, 3, 4);
+            // Disjoint pairs one after the other: their two rotations are independent, so
+            // the processor overlaps their divisions and square roots.
+            rotate(m, v, 0, 1, 4, inverse);
+            rotate(m, v, 2, 3, 4, inverse);
+            rotate(m, v, 0, 2, 4, inverse);
+            rotate(m, v, 1, 3, 4, inverse);
+            rotate(m, v, 0, 3, 4, inverse);
+            rotate(m, v, 1, 2, 4, inverse);
         } else {
             for p in 0..k {
                 for q in p + 1..k {
-                    rotate(m, v, p, q, k);
+                    rotate(m, v, p, q, k, inverse);
                 }
             }
         }
@@ -807,7 +809,9 @@ fn jacobi<const N: usize>(m: &mut [[f64; N]; N], v: &mut [[f64; N]; N], k: usize
 }
 
 /// One Jacobi rotation of [`jacobi`]: zeroes `m[p][q]` (`p < q < k`) unless it is already
-/// negligible against both `m[p][p]` and `m[q][q]` (then it is set to zero).
+/// negligible against both `m[p][p]` and `m[q][q]` (then it is set to zero). `inverse` is one
+/// over the block's largest entry (the tangent of the angle is computed from the entries
+/// scaled by it, which cannot overflow).
 #[inline(always)]
 fn rotate<const N: usize>(
     m: &mut [[f64; N]; N],
@@ -815,6 +819,7 @@ fn rotate<const N: usize>(
     p: usize,
     q: usize,
     k: usize,
+    inverse: f64,
 ) {
     let g = m[p][q];
     let (app, aqq) = (m[p][p], m[q][q]);
@@ -825,15 +830,18 @@ fn rotate<const N: usize>(
         m[q][p] = 0.0;
         return;
     }
-    let theta = 0.5 * (aqq - app) / g;
-    let t = if theta.abs() > 1e150 {
-        0.5 / theta
-    } else {
-        theta.signum() / (theta.abs() + (1.0 + theta * theta).sqrt())
-    };
-    let c = 1.0 / (1.0 + t * t).sqrt();
-    let s = t * c;
-    let tau = s / (1.0 + c);
+    // The tangent of the smaller rotation angle, t = sign(h) 2 g / (|h| + sqrt(h^2 + 4 g^2))
+    // with h = aqq - app (Rutishauser's t = sign(theta) / (|theta| + sqrt(theta^2 + 1)),
+    // theta = h / 2 g, with one division less on the critical path).
+    let (gs, hs) = (g * inverse, (aqq - app) * inverse);
+    let mut t = 2.0 * gs * hs.signum() / (hs.abs() + (hs * hs + 4.0 * gs * gs).sqrt());
+    if !t.is_finite() {
+        // Scaled entries so small that their squares underflow.
+        let theta = 0.5 * (aqq - app) / g;
+        t = theta.signum() / (theta.abs() + (1.0 + theta * theta).sqrt());
+    }
+    let root = (1.0 + t * t).sqrt();
+    let (s, tau) = (t / root, t / (1.0 + root));
     m[p][p] = app - t * g;
     m[q][q] = aqq + t * g;
     m[p][q] = 0.0;

@@ -48,6 +48,7 @@ pub use rb2d::{read_rb2d, stream_rb2d};
 pub use tum::{StampedPose, read_tum, write_atomically, write_atomically_with, write_tum};
 pub use victoria_park::{VictoriaParkOptions, read_victoria_park, stream_victoria_park};
 
+use std::borrow::Cow;
 use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
@@ -82,6 +83,11 @@ impl<'a> Fields<'a> {
             text,
             fields: text.split(',').map(str::trim).collect(),
         }
+    }
+
+    /// All fields, in order.
+    pub(crate) fn all(&self) -> &[&'a str] {
+        &self.fields
     }
 
     /// Number of fields.
@@ -320,11 +326,10 @@ impl Lines {
     }
 }
 
-impl Iterator for Lines {
-    /// `(line number, text)`, or the I/O error that ends the file.
-    type Item = Result<(usize, String)>;
-
-    fn next(&mut self) -> Option<Self::Item> {
+impl Lines {
+    /// The next line as [`Iterator::next`] gives it, borrowed from the reader's buffer when
+    /// it is valid UTF-8 (no allocation per line).
+    pub(crate) fn next_line(&mut self) -> Option<Result<(usize, Cow<'_, str>)>> {
         if self.done {
             return None;
         }
@@ -355,16 +360,23 @@ impl Iterator for Lines {
                 if let Some(rest) = bytes.strip_suffix(b"\n") {
                     bytes = rest.strip_suffix(b"\r").unwrap_or(rest);
                 }
-                Some(Ok((
-                    self.number,
-                    String::from_utf8_lossy(bytes).into_owned(),
-                )))
+                Some(Ok((self.number, String::from_utf8_lossy(bytes))))
             }
             Err(e) => {
                 self.done = true;
                 Some(Err(SensorError::io(&self.path, e)))
             }
         }
+    }
+}
+
+impl Iterator for Lines {
+    /// `(line number, text)`, or the I/O error that ends the file.
+    type Item = Result<(usize, String)>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.next_line()
+            .map(|next| next.map(|(number, text)| (number, text.into_owned())))
     }
 }
 

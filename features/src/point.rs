@@ -202,6 +202,12 @@ impl Feature for Point {
         self.active.iter().map(|s| s.spec()).collect()
     }
 
+    /// The rows of the active subspaces, without collecting them (run for every point at
+    /// every update).
+    fn mspace_dim(&self) -> usize {
+        self.active.iter().map(|s| s.spec().rows).sum()
+    }
+
     fn growth_options(&self) -> Vec<Subspace> {
         [PointSubspace::Horizontal, PointSubspace::Height]
             .into_iter()

@@ -202,6 +202,13 @@ impl EkfParams {
     }
 }
 
+/// `eta^T S^-1 eta` for the inverse `s_inv` of an innovation covariance.
+fn quadratic_form(s_inv: &DMatrix<f64>, eta: &DVector<f64>) -> f64 {
+    (0..eta.len())
+        .map(|i| eta[i] * (0..eta.len()).map(|j| s_inv[(i, j)] * eta[j]).sum::<f64>())
+        .sum()
+}
+
 /// One observation linearized against one feature: a block row of `J_eta,state` (eq. 30)
 /// restricted to the state rows it touches.
 #[derive(Clone, Debug)]
@@ -397,9 +404,27 @@ impl<P: RobotPose> Ekf<P> {
     /// `S = H C H^T + C_eta` of a pairing; for a tentative feature (no rows) the feature's own
     /// uncertainty is approximated by one more `C_eta` (it was placed by one measurement).
     fn innovation_covariance(&self, pairing: &Pairing, tentative: bool) -> DMatrix<f64> {
-        let c = self.cov.gather(&pairing.indices, &pairing.indices);
-        let s = &pairing.h * c * pairing.h.transpose() + &pairing.cov_eta;
-        if tentative { s + &pairing.cov_eta } else { s }
+        let (m, k) = pairing.h.shape();
+        let indices = &pairing.indices;
+        // H C on the pairing's rows, C read in place.
+        let mut hc = DMatrix::<f64>::zeros(m, k);
+        for b in 0..k {
+            for a in 0..k {
+                let c = self.cov.get(indices[a], indices[b]);
+                for i in 0..m {
+                    hc[(i, b)] += pairing.h[(i, a)] * c;
+                }
+            }
+        }
+        DMatrix::from_fn(m, m, |i, j| {
+            let s = (0..k).map(|b| hc[(i, b)] * pairing.h[(j, b)]).sum::<f64>()
+                + pairing.cov_eta[(i, j)];
+            if tentative {
+                s + pairing.cov_eta[(i, j)]
+            } else {
+                s
+            }
+        })
     }
 }
 

@@ -61,38 +61,69 @@ pub(crate) struct Fields<'a> {
     file: &'a Path,
     line: usize,
     text: &'a str,
-    fields: Vec<&'a str>,
+    /// The first [`INLINE_FIELDS`] fields, or all of them when `spilled` is empty.
+    inline: [&'a str; INLINE_FIELDS],
+    /// How many of `inline` are fields.
+    count: usize,
+    /// All fields of a line with more than [`INLINE_FIELDS`] (empty otherwise: most lines
+    /// of a log are short, and this keeps them free of allocations).
+    spilled: Vec<&'a str>,
 }
+
+/// Fields of a line kept without allocating.
+const INLINE_FIELDS: usize = 12;
 
 impl<'a> Fields<'a> {
     /// Fields separated by any whitespace (spaces and tabs).
     pub(crate) fn whitespace(file: &'a Path, line: usize, text: &'a str) -> Self {
-        Fields {
-            file,
-            line,
-            text,
-            fields: text.split_whitespace().collect(),
-        }
+        Self::from_iter(file, line, text, text.split_whitespace())
     }
 
     /// Comma-separated fields, each trimmed.
     pub(crate) fn csv(file: &'a Path, line: usize, text: &'a str) -> Self {
-        Fields {
+        Self::from_iter(file, line, text, text.split(',').map(str::trim))
+    }
+
+    fn from_iter(
+        file: &'a Path,
+        line: usize,
+        text: &'a str,
+        fields: impl Iterator<Item = &'a str>,
+    ) -> Self {
+        let mut out = Fields {
             file,
             line,
             text,
-            fields: text.split(',').map(str::trim).collect(),
+            inline: [""; INLINE_FIELDS],
+            count: 0,
+            spilled: Vec::new(),
+        };
+        for field in fields {
+            if out.count < INLINE_FIELDS {
+                out.inline[out.count] = field;
+            } else {
+                if out.spilled.is_empty() {
+                    out.spilled.extend_from_slice(&out.inline);
+                }
+                out.spilled.push(field);
+            }
+            out.count += 1;
         }
+        out
     }
 
     /// All fields, in order.
     pub(crate) fn all(&self) -> &[&'a str] {
-        &self.fields
+        if self.spilled.is_empty() {
+            &self.inline[..self.count]
+        } else {
+            &self.spilled
+        }
     }
 
     /// Number of fields.
     pub(crate) fn len(&self) -> usize {
-        self.fields.len()
+        self.all().len()
     }
 
     /// The 1-based line number.
@@ -102,7 +133,7 @@ impl<'a> Fields<'a> {
 
     /// The first field, or `""` for an empty line.
     pub(crate) fn first(&self) -> &'a str {
-        self.fields.first().copied().unwrap_or("")
+        self.all().first().copied().unwrap_or("")
     }
 
     /// A parse error at this line.
@@ -113,7 +144,7 @@ impl<'a> Fields<'a> {
     /// A parse error at field `index` (its column), or at the end of the line when the line
     /// has no such field.
     pub(crate) fn field_error(&self, index: usize, message: impl Into<String>) -> SensorError {
-        let offset = match self.fields.get(index) {
+        let offset = match self.all().get(index) {
             // A field is a slice of the line's text: its offset is the distance between them.
             Some(field) => (field.as_ptr() as usize).saturating_sub(self.text.as_ptr() as usize),
             None => self.text.len(),
@@ -129,25 +160,25 @@ impl<'a> Fields<'a> {
 
     /// Fails unless the line has exactly `expected` fields.
     pub(crate) fn expect_len(&self, expected: usize, what: &str) -> Result<()> {
-        if self.fields.len() == expected {
+        if self.all().len() == expected {
             Ok(())
         } else {
             Err(self.error(format!(
                 "{what}: expected {expected} fields, got {}",
-                self.fields.len()
+                self.all().len()
             )))
         }
     }
 
     /// Field `index` (0-based), or an error naming `what` when the line is too short.
     pub(crate) fn get(&self, index: usize, what: &str) -> Result<&'a str> {
-        self.fields.get(index).copied().ok_or_else(|| {
+        self.all().get(index).copied().ok_or_else(|| {
             self.field_error(
                 index,
                 format!(
                     "missing field {} ({what}): the line has only {} fields",
                     index + 1,
-                    self.fields.len()
+                    self.all().len()
                 ),
             )
         })
@@ -164,7 +195,7 @@ impl<'a> Fields<'a> {
                 format!(
                     "field {} ({what}): value `{}` is not finite",
                     index + 1,
-                    self.fields[index]
+                    self.all()[index]
                 ),
             ))
         }

@@ -315,7 +315,11 @@ mod dual_tests {
             );
             assert_eq!(
                 point.mspace_dim(),
-                point.active_subspaces().iter().map(|s| s.rows).sum()
+                point
+                    .active_subspaces()
+                    .iter()
+                    .map(|s| s.rows)
+                    .sum::<usize>()
             );
         }
     }

@@ -579,6 +579,28 @@ mod tests {
         }
     }
 
+    /// The loops of `innovation_covariance` and `quadratic_form` give the dense products.
+    #[test]
+    fn innovation_covariance_matches_the_dense_products() {
+        let c = DMatrix::from_row_slice(3, 3, &[2.0, 0.3, -0.1, 0.3, 1.5, 0.2, -0.1, 0.2, 0.7]);
+        let ekf = Ekf::new(Pose2::new(1.0, 2.0, 0.3), c.clone(), EkfParams::default()).unwrap();
+        let pairing = Pairing {
+            feature: FeatureId(0),
+            indices: vec![2, 0],
+            h: DMatrix::from_row_slice(2, 2, &[0.5, -1.0, 2.0, 0.25]),
+            eta: DVector::from_column_slice(&[0.1, -0.2]),
+            cov_eta: DMatrix::from_row_slice(2, 2, &[0.01, 0.0, 0.0, 0.04]),
+        };
+        let c_rows = DMatrix::from_fn(2, 2, |a, b| c[(pairing.indices[a], pairing.indices[b])]);
+        let dense = &pairing.h * c_rows * pairing.h.transpose() + &pairing.cov_eta;
+        assert!((ekf.innovation_covariance(&pairing, false) - &dense).amax() < 1e-12);
+        let tentative = &dense + &pairing.cov_eta;
+        assert!((ekf.innovation_covariance(&pairing, true) - tentative).amax() < 1e-12);
+        let s_inv = dense.try_inverse().unwrap();
+        let nis = (pairing.eta.transpose() * &s_inv * &pairing.eta)[(0, 0)];
+        assert!((quadratic_form(&s_inv, &pairing.eta) - nis).abs() < 1e-12);
+    }
+
     /// Without a correction the constrained transition is `J_rr` itself.
     #[test]
     fn without_a_correction_the_transition_is_unchanged() {

@@ -202,6 +202,12 @@ impl Feature for Point {
         self.active.iter().map(|s| s.spec()).collect()
     }
 
+    /// The rows of the active subspaces, without collecting them (run for every point at
+    /// every update).
+    fn mspace_dim(&self) -> usize {
+        self.active.iter().map(|s| s.spec().rows).sum()
+    }
+
     fn growth_options(&self) -> Vec<Subspace> {
         [PointSubspace::Horizontal, PointSubspace::Height]
             .into_iter()
@@ -231,8 +237,25 @@ impl Feature for Point {
         stack_rows(3, &self.active, |s| Ok(s.rows()))
     }
 
+    /// `B^T`, written directly: B is made of unit rows (one column of B~ per active
+    /// coordinate), and this runs for every observation of a point.
     fn dual(&self) -> Result<DMatrix<f64>> {
-        Ok(self.projection()?.transpose())
+        let mut dual = DMatrix::zeros(3, self.mspace_dim());
+        let mut column = 0;
+        for subspace in &self.active {
+            match subspace {
+                PointSubspace::Horizontal => {
+                    dual[(0, column)] = 1.0;
+                    dual[(1, column + 1)] = 1.0;
+                    column += 2;
+                }
+                PointSubspace::Height => {
+                    dual[(2, column)] = 1.0;
+                    column += 1;
+                }
+            }
+        }
+        Ok(dual)
     }
 
     /// `x_f += B~ dx_p` without forming B~: its rows are unit rows (the hot path of a
@@ -263,5 +286,41 @@ impl Feature for Point {
         }
         slam_core::ensure_finite(position.as_slice(), "point after perturbation")?;
         self.coordinates.set_block(0, CoordBlock::Point3(position))
+    }
+}
+
+#[cfg(test)]
+mod dual_tests {
+    use super::*;
+
+    /// The directly written B~ is B^T for every order of activation.
+    #[test]
+    fn dual_is_the_transposed_projection() {
+        let position = Vector3::new(1.0, -2.0, 0.5);
+        let mut cases = vec![
+            Point::new(position).unwrap(),
+            Point::planar(position).unwrap(),
+        ];
+        let mut full = Point::planar(position).unwrap();
+        full.activate(HEIGHT.name).unwrap();
+        cases.push(full);
+        let mut height_first = Point::new(position).unwrap();
+        height_first.activate(HEIGHT.name).unwrap();
+        height_first.activate(HORIZONTAL.name).unwrap();
+        cases.push(height_first);
+        for point in cases {
+            assert_eq!(
+                point.dual().unwrap(),
+                point.projection().unwrap().transpose()
+            );
+            assert_eq!(
+                point.mspace_dim(),
+                point
+                    .active_subspaces()
+                    .iter()
+                    .map(|s| s.rows)
+                    .sum::<usize>()
+            );
+        }
     }
 }

@@ -182,11 +182,14 @@ impl Coordinates {
 
     /// Replaces block `index` by a block of the same kind with finite values.
     pub fn set_block(&mut self, index: usize, value: CoordBlock) -> Result<()> {
-        let current = self.blocks.get(index).ok_or(Error::DimensionMismatch {
-            what: "coordinate block index".into(),
-            expected: self.blocks.len(),
-            got: index,
-        })?;
+        let current = self
+            .blocks
+            .get(index)
+            .ok_or_else(|| Error::DimensionMismatch {
+                what: "coordinate block index".into(),
+                expected: self.blocks.len(),
+                got: index,
+            })?;
         if current.kind() != value.kind() {
             return Err(Error::BlockKindMismatch {
                 index,

@@ -629,6 +629,25 @@ impl RobotPose for Pose2 {
         vec![self.x, self.y, self.theta]
     }
 
+    /// The default's arithmetic without its parameter vectors.
+    fn oplus(&self, delta: &[f64]) -> Result<Self> {
+        match delta {
+            [dx, dy, dtheta] => Ok(Pose2::new(self.x + dx, self.y + dy, self.theta + dtheta)),
+            _ => Err(Error::DimensionMismatch {
+                what: "pose perturbation".into(),
+                expected: 3,
+                got: delta.len(),
+            }),
+        }
+    }
+
+    /// The default's arithmetic without its parameter vectors.
+    fn distance_and_angle(&self, other: &Self) -> (f64, f64) {
+        let (dx, dy) = (self.x - other.x, self.y - other.y);
+        let dtheta = wrap_angle(self.theta - other.theta);
+        ((dx * dx + dy * dy).sqrt(), 0.0f64.max(dtheta.abs()))
+    }
+
     fn planar_motion_generators(&self) -> [Vec<f64>; 3] {
         [
             vec![1.0, 0.0, 0.0],
@@ -851,6 +870,12 @@ mod tests {
             prop_assert!((distance - (a.translation() - b.translation()).norm()).abs() < 1e-9);
             prop_assert!(angle <= PI && (angle - wrap_angle(a.theta - b.theta).abs()).abs() < 1e-12);
             prop_assert!(a.oplus(&[0.0; 2]).is_err());
+            // Pose2's own oplus and distance_and_angle are the defaults' arithmetic exactly.
+            let delta = b.parameters();
+            let summed: Vec<f64> = a.parameters().iter().zip(&delta).map(|(p, d)| p + d).collect();
+            prop_assert_eq!(a.oplus(&delta).unwrap(), Pose2::from_parameters(&summed).unwrap());
+            let d = a.ominus(&b);
+            prop_assert_eq!((distance, angle), ((d[0] * d[0] + d[1] * d[1]).sqrt(), d[2].abs()));
         }
 
         #[test]

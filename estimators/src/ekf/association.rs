@@ -5,7 +5,7 @@
 use slam_core::{Observation, Result, RobotPose};
 
 use super::jacobians::stack;
-use super::{Decision, Ekf, Pairing};
+use super::{Decision, Ekf, Pairing, quadratic_form};
 use crate::association::{
     Candidate, Choice, associate, candidate_features, crowded, sort_by_distance,
 };
@@ -37,7 +37,7 @@ impl<P: RobotPose> Ekf<P> {
                 skips.count("association: singular innovation covariance");
                 continue;
             };
-            let distance = (pairing.eta.transpose() * &s_inv * &pairing.eta)[(0, 0)];
+            let distance = quadratic_form(&s_inv, &pairing.eta);
             if distance.is_finite() {
                 out.push(Candidate {
                     feature: id.0,

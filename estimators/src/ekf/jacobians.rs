@@ -2,7 +2,7 @@
 //! coordinates (for the observability constraint), the projection that removes them, and the
 //! stacking of pairings into one batch measurement.
 
-use slam_core::nalgebra::{DMatrix, DVector};
+use slam_core::nalgebra::{DMatrix, DVector, Matrix3};
 use slam_core::{CoordBlock, Coordinates, RobotPose};
 
 use super::Pairing;
@@ -34,8 +34,43 @@ pub(super) fn coordinate_generators(coordinates: &Coordinates) -> DMatrix<f64> {
 }
 
 /// `H - H N (N^T N)^-1 N^T`: the Jacobian that observes nothing along the columns of `n`
-/// (left as it is when `N^T N` is singular).
+/// (left as it is when `N^T N` is singular). `n` has 3 columns (the planar generators); the
+/// 3 x 3 Gram matrix is inverted in closed form.
 pub(super) fn project_out(h: &DMatrix<f64>, n: &DMatrix<f64>) -> DMatrix<f64> {
+    if n.ncols() != 3 || n.nrows() != h.ncols() {
+        return project_out_dense(h, n);
+    }
+    let mut gram = Matrix3::zeros();
+    for a in 0..3 {
+        for b in 0..3 {
+            gram[(a, b)] = n.column(a).dot(&n.column(b));
+        }
+    }
+    let Some(inverse) = gram.try_inverse() else {
+        return h.clone();
+    };
+    // H N (N^T N)^-1, m x 3.
+    let mut hn = DMatrix::<f64>::zeros(h.nrows(), 3);
+    for i in 0..h.nrows() {
+        let mut row = [0.0; 3];
+        for (a, value) in row.iter_mut().enumerate() {
+            *value = (0..h.ncols()).map(|k| h[(i, k)] * n[(k, a)]).sum();
+        }
+        for b in 0..3 {
+            hn[(i, b)] = (0..3).map(|a| row[a] * inverse[(a, b)]).sum();
+        }
+    }
+    let mut out = h.clone();
+    for j in 0..h.ncols() {
+        for i in 0..h.nrows() {
+            out[(i, j)] -= (0..3).map(|b| hn[(i, b)] * n[(j, b)]).sum::<f64>();
+        }
+    }
+    out
+}
+
+/// [`project_out`] for any number of directions, by nalgebra products.
+fn project_out_dense(h: &DMatrix<f64>, n: &DMatrix<f64>) -> DMatrix<f64> {
     let gram = n.transpose() * n;
     match gram.try_inverse() {
         Some(inverse) => h - h * n * inverse * n.transpose(),
@@ -75,4 +110,22 @@ pub(super) fn stack(
         row += k;
     }
     (indices, h, r, eta)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The closed-form projection equals the dense one, and observes nothing along `n`.
+    #[test]
+    fn project_out_matches_the_dense_products() {
+        let h = DMatrix::from_fn(2, 5, |i, j| ((i * 5 + j) as f64 * 0.7).sin());
+        let n = DMatrix::from_fn(5, 3, |i, j| ((i * 3 + j) as f64 * 1.3).cos() + i as f64);
+        let fast = project_out(&h, &n);
+        let dense = project_out_dense(&h, &n);
+        assert!((&fast - &dense).amax() < 1e-12, "{fast} {dense}");
+        assert!((&fast * &n).amax() < 1e-12);
+        let singular = DMatrix::zeros(5, 3);
+        assert_eq!(project_out(&h, &singular), h);
+    }
 }

@@ -202,6 +202,13 @@ impl EkfParams {
     }
 }
 
+/// `eta^T S^-1 eta` for the inverse `s_inv` of an innovation covariance.
+fn quadratic_form(s_inv: &DMatrix<f64>, eta: &DVector<f64>) -> f64 {
+    (0..eta.len())
+        .map(|i| eta[i] * (0..eta.len()).map(|j| s_inv[(i, j)] * eta[j]).sum::<f64>())
+        .sum()
+}
+
 /// One observation linearized against one feature: a block row of `J_eta,state` (eq. 30)
 /// restricted to the state rows it touches.
 #[derive(Clone, Debug)]
@@ -397,9 +404,27 @@ impl<P: RobotPose> Ekf<P> {
     /// `S = H C H^T + C_eta` of a pairing; for a tentative feature (no rows) the feature's own
     /// uncertainty is approximated by one more `C_eta` (it was placed by one measurement).
     fn innovation_covariance(&self, pairing: &Pairing, tentative: bool) -> DMatrix<f64> {
-        let c = self.cov.gather(&pairing.indices, &pairing.indices);
-        let s = &pairing.h * c * pairing.h.transpose() + &pairing.cov_eta;
-        if tentative { s + &pairing.cov_eta } else { s }
+        let (m, k) = pairing.h.shape();
+        let indices = &pairing.indices;
+        // H C on the pairing's rows, C read in place.
+        let mut hc = DMatrix::<f64>::zeros(m, k);
+        for b in 0..k {
+            for a in 0..k {
+                let c = self.cov.get(indices[a], indices[b]);
+                for i in 0..m {
+                    hc[(i, b)] += pairing.h[(i, a)] * c;
+                }
+            }
+        }
+        DMatrix::from_fn(m, m, |i, j| {
+            let s = (0..k).map(|b| hc[(i, b)] * pairing.h[(j, b)]).sum::<f64>()
+                + pairing.cov_eta[(i, j)];
+            if tentative {
+                s + pairing.cov_eta[(i, j)]
+            } else {
+                s
+            }
+        })
     }
 }
 
@@ -552,6 +577,28 @@ mod tests {
                 assert!((&carried - &at_estimate).amax() > 0.1, "{dead_reckoned:?}");
             }
         }
+    }
+
+    /// The loops of `innovation_covariance` and `quadratic_form` give the dense products.
+    #[test]
+    fn innovation_covariance_matches_the_dense_products() {
+        let c = DMatrix::from_row_slice(3, 3, &[2.0, 0.3, -0.1, 0.3, 1.5, 0.2, -0.1, 0.2, 0.7]);
+        let ekf = Ekf::new(Pose2::new(1.0, 2.0, 0.3), c.clone(), EkfParams::default()).unwrap();
+        let pairing = Pairing {
+            feature: FeatureId(0),
+            indices: vec![2, 0],
+            h: DMatrix::from_row_slice(2, 2, &[0.5, -1.0, 2.0, 0.25]),
+            eta: DVector::from_column_slice(&[0.1, -0.2]),
+            cov_eta: DMatrix::from_row_slice(2, 2, &[0.01, 0.0, 0.0, 0.04]),
+        };
+        let c_rows = DMatrix::from_fn(2, 2, |a, b| c[(pairing.indices[a], pairing.indices[b])]);
+        let dense = &pairing.h * c_rows * pairing.h.transpose() + &pairing.cov_eta;
+        assert!((ekf.innovation_covariance(&pairing, false) - &dense).amax() < 1e-12);
+        let tentative = &dense + &pairing.cov_eta;
+        assert!((ekf.innovation_covariance(&pairing, true) - tentative).amax() < 1e-12);
+        let s_inv = dense.try_inverse().unwrap();
+        let nis = (pairing.eta.transpose() * &s_inv * &pairing.eta)[(0, 0)];
+        assert!((quadratic_form(&s_inv, &pairing.eta) - nis).abs() < 1e-12);
     }
 
     /// Without a correction the constrained transition is `J_rr` itself.

@@ -11,7 +11,7 @@ use slam_core::{
 };
 
 use super::jacobians::{coordinate_generators, project_out, stack};
-use super::{Decision, Ekf, Pairing};
+use super::{Decision, Ekf, Pairing, quadratic_form};
 use crate::lifecycle::{
     MapEntry, OUTSIDE_MSPACE_TOLERANCE, Sighting, Track, drop_views_when_grown, extension_of, grow,
 };
@@ -93,7 +93,7 @@ impl<P: RobotPose> Ekf<P> {
                         let s = self.innovation_covariance(&pairing, false);
                         match s.try_inverse() {
                             Some(s_inv) => {
-                                let nis = (pairing.eta.transpose() * s_inv * &pairing.eta)[(0, 0)];
+                                let nis = quadratic_form(&s_inv, &pairing.eta);
                                 report.nis.push((nis, pairing.eta.len()));
                             }
                             None => self.skips.count("NIS: singular innovation covariance"),

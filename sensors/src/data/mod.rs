@@ -48,6 +48,7 @@ pub use rb2d::{read_rb2d, stream_rb2d};
 pub use tum::{StampedPose, read_tum, write_atomically, write_atomically_with, write_tum};
 pub use victoria_park::{VictoriaParkOptions, read_victoria_park, stream_victoria_park};
 
+use std::borrow::Cow;
 use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
@@ -60,33 +61,69 @@ pub(crate) struct Fields<'a> {
     file: &'a Path,
     line: usize,
     text: &'a str,
-    fields: Vec<&'a str>,
+    /// The first [`INLINE_FIELDS`] fields, or all of them when `spilled` is empty.
+    inline: [&'a str; INLINE_FIELDS],
+    /// How many of `inline` are fields.
+    count: usize,
+    /// All fields of a line with more than [`INLINE_FIELDS`] (empty otherwise: most lines
+    /// of a log are short, and this keeps them free of allocations).
+    spilled: Vec<&'a str>,
 }
+
+/// Fields of a line kept without allocating.
+const INLINE_FIELDS: usize = 12;
 
 impl<'a> Fields<'a> {
     /// Fields separated by any whitespace (spaces and tabs).
     pub(crate) fn whitespace(file: &'a Path, line: usize, text: &'a str) -> Self {
-        Fields {
-            file,
-            line,
-            text,
-            fields: text.split_whitespace().collect(),
-        }
+        Self::from_iter(file, line, text, text.split_whitespace())
     }
 
     /// Comma-separated fields, each trimmed.
     pub(crate) fn csv(file: &'a Path, line: usize, text: &'a str) -> Self {
-        Fields {
+        Self::from_iter(file, line, text, text.split(',').map(str::trim))
+    }
+
+    fn from_iter(
+        file: &'a Path,
+        line: usize,
+        text: &'a str,
+        fields: impl Iterator<Item = &'a str>,
+    ) -> Self {
+        let mut out = Fields {
             file,
             line,
             text,
-            fields: text.split(',').map(str::trim).collect(),
+            inline: [""; INLINE_FIELDS],
+            count: 0,
+            spilled: Vec::new(),
+        };
+        for field in fields {
+            if out.count < INLINE_FIELDS {
+                out.inline[out.count] = field;
+            } else {
+                if out.spilled.is_empty() {
+                    out.spilled.extend_from_slice(&out.inline);
+                }
+                out.spilled.push(field);
+            }
+            out.count += 1;
+        }
+        out
+    }
+
+    /// All fields, in order.
+    pub(crate) fn all(&self) -> &[&'a str] {
+        if self.spilled.is_empty() {
+            &self.inline[..self.count]
+        } else {
+            &self.spilled
         }
     }
 
     /// Number of fields.
     pub(crate) fn len(&self) -> usize {
-        self.fields.len()
+        self.all().len()
     }
 
     /// The 1-based line number.
@@ -96,7 +133,7 @@ impl<'a> Fields<'a> {
 
     /// The first field, or `""` for an empty line.
     pub(crate) fn first(&self) -> &'a str {
-        self.fields.first().copied().unwrap_or("")
+        self.all().first().copied().unwrap_or("")
     }
 
     /// A parse error at this line.
@@ -107,7 +144,7 @@ impl<'a> Fields<'a> {
     /// A parse error at field `index` (its column), or at the end of the line when the line
     /// has no such field.
     pub(crate) fn field_error(&self, index: usize, message: impl Into<String>) -> SensorError {
-        let offset = match self.fields.get(index) {
+        let offset = match self.all().get(index) {
             // A field is a slice of the line's text: its offset is the distance between them.
             Some(field) => (field.as_ptr() as usize).saturating_sub(self.text.as_ptr() as usize),
             None => self.text.len(),
@@ -123,25 +160,25 @@ impl<'a> Fields<'a> {
 
     /// Fails unless the line has exactly `expected` fields.
     pub(crate) fn expect_len(&self, expected: usize, what: &str) -> Result<()> {
-        if self.fields.len() == expected {
+        if self.all().len() == expected {
             Ok(())
         } else {
             Err(self.error(format!(
                 "{what}: expected {expected} fields, got {}",
-                self.fields.len()
+                self.all().len()
             )))
         }
     }
 
     /// Field `index` (0-based), or an error naming `what` when the line is too short.
     pub(crate) fn get(&self, index: usize, what: &str) -> Result<&'a str> {
-        self.fields.get(index).copied().ok_or_else(|| {
+        self.all().get(index).copied().ok_or_else(|| {
             self.field_error(
                 index,
                 format!(
                     "missing field {} ({what}): the line has only {} fields",
                     index + 1,
-                    self.fields.len()
+                    self.all().len()
                 ),
             )
         })
@@ -158,7 +195,7 @@ impl<'a> Fields<'a> {
                 format!(
                     "field {} ({what}): value `{}` is not finite",
                     index + 1,
-                    self.fields[index]
+                    self.all()[index]
                 ),
             ))
         }
@@ -320,11 +357,10 @@ impl Lines {
     }
 }
 
-impl Iterator for Lines {
-    /// `(line number, text)`, or the I/O error that ends the file.
-    type Item = Result<(usize, String)>;
-
-    fn next(&mut self) -> Option<Self::Item> {
+impl Lines {
+    /// The next line as [`Iterator::next`] gives it, borrowed from the reader's buffer when
+    /// it is valid UTF-8 (no allocation per line).
+    pub(crate) fn next_line(&mut self) -> Option<Result<(usize, Cow<'_, str>)>> {
         if self.done {
             return None;
         }
@@ -355,16 +391,23 @@ impl Iterator for Lines {
                 if let Some(rest) = bytes.strip_suffix(b"\n") {
                     bytes = rest.strip_suffix(b"\r").unwrap_or(rest);
                 }
-                Some(Ok((
-                    self.number,
-                    String::from_utf8_lossy(bytes).into_owned(),
-                )))
+                Some(Ok((self.number, String::from_utf8_lossy(bytes))))
             }
             Err(e) => {
                 self.done = true;
                 Some(Err(SensorError::io(&self.path, e)))
             }
         }
+    }
+}
+
+impl Iterator for Lines {
+    /// `(line number, text)`, or the I/O error that ends the file.
+    type Item = Result<(usize, String)>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.next_line()
+            .map(|next| next.map(|(number, text)| (number, text.into_owned())))
     }
 }
 

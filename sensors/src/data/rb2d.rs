@@ -31,7 +31,7 @@
 
 use std::collections::VecDeque;
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use slam_core::nalgebra::{Matrix3, Vector2, Vector3};
 use slam_core::{Observation, Pose2, Pose3};
@@ -146,7 +146,8 @@ pub fn stream_rb2d(path: &Path) -> Result<EventStream> {
     let mut landmarks = Vec::new();
     let mut evidence = Rb2dEvidence::default();
     let mut records = 0usize;
-    for next in Lines::open(path)? {
+    let mut lines = Lines::open(path)?;
+    while let Some(next) = lines.next_line() {
         let (line, content) = next?;
         let fields = Fields::whitespace(path, line, &content);
         let first = fields.first();
@@ -154,7 +155,7 @@ pub fn stream_rb2d(path: &Path) -> Result<EventStream> {
             continue;
         }
         records += 1;
-        evidence.add(&content.split_whitespace().collect::<Vec<_>>());
+        evidence.add(fields.all());
         if first == "LM"
             && let Ok(landmark) = parse_landmark(&fields)
         {
@@ -182,6 +183,7 @@ pub fn stream_rb2d(path: &Path) -> Result<EventStream> {
     };
     let skipped = SkipCounter::default();
     let reader = Rb2dReader {
+        path: path.to_path_buf(),
         lines: Lines::open(path)?,
         skipped: skipped.clone(),
         state: State {
@@ -194,6 +196,8 @@ pub fn stream_rb2d(path: &Path) -> Result<EventStream> {
 
 /// The state of a [`stream_rb2d`] stream.
 struct Rb2dReader {
+    /// The file (for messages).
+    path: PathBuf,
     lines: Lines,
     skipped: SkipCounter,
     state: State,
@@ -201,7 +205,7 @@ struct Rb2dReader {
 
 impl Step for Rb2dReader {
     fn step(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<bool> {
-        let Some(next) = self.lines.next() else {
+        let Some(next) = self.lines.next_line() else {
             flush(&mut self.state, out);
             return Ok(false);
         };
@@ -210,7 +214,7 @@ impl Step for Rb2dReader {
         if trimmed.starts_with('#') {
             self.skipped.count("#");
         } else if !trimmed.is_empty() {
-            let fields = Fields::whitespace(self.lines.path(), line, &content);
+            let fields = Fields::whitespace(&self.path, line, &content);
             read_record(&fields, &mut self.state, out)?;
         }
         Ok(true)

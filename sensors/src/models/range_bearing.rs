@@ -68,7 +68,7 @@ impl MeasurementModel for RangeBearing {
         }
         let r = r2.sqrt();
         Ok(Innovation {
-            eta: DVector::from_vec(vec![
+            eta: DVector::from_column_slice(&[
                 r - self.range,
                 wrap_angle(p.y.atan2(p.x) - self.bearing),
             ]),
@@ -77,11 +77,17 @@ impl MeasurementModel for RangeBearing {
                 3,
                 &[p.x / r, p.y / r, 0.0, -p.y / r2, p.x / r2, 0.0],
             ),
-            d_eta_d_v: -DMatrix::identity(2, 2),
-            cov_v: DMatrix::from_diagonal(&DVector::from_vec(vec![
-                self.sigma_range.powi(2),
-                self.sigma_bearing.powi(2),
-            ])),
+            d_eta_d_v: DMatrix::from_row_slice(2, 2, &[-1.0, 0.0, 0.0, -1.0]),
+            cov_v: DMatrix::from_row_slice(
+                2,
+                2,
+                &[
+                    self.sigma_range.powi(2),
+                    0.0,
+                    0.0,
+                    self.sigma_bearing.powi(2),
+                ],
+            ),
         })
     }
 

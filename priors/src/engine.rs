@@ -1572,20 +1572,27 @@ mod tests {
         }
     }
 
+    /// A symmetric `k x k` matrix (in the leading block of an 8 x 8 array) with entries
+    /// uniform in [-10, 10).
+    fn random_symmetric(rng: &mut ChaCha8Rng, k: usize) -> [[f64; 8]; 8] {
+        let mut a = [[0.0; 8]; 8];
+        for i in 0..k {
+            for j in 0..=i {
+                let v = rng.random_range(-10.0..10.0);
+                a[i][j] = v;
+                a[j][i] = v;
+            }
+        }
+        a
+    }
+
     #[test]
     fn eigen_decomposition_of_random_symmetric_matrices() {
         let mut rng = ChaCha8Rng::seed_from_u64(20);
         for _ in 0..50 {
             // Every fixed window size, a leading block, and the general path (k = 5).
             for k in [2, 4, 6, 8, 3, 5] {
-                let mut a = [[0.0; 8]; 8];
-                for i in 0..k {
-                    for j in 0..=i {
-                        let v = rng.random_range(-10.0..10.0);
-                        a[i][j] = v;
-                        a[j][i] = v;
-                    }
-                }
+                let a = random_symmetric(&mut rng, k);
                 let values = check_decomposition(&a, k);
                 let trace: f64 = (0..k).map(|i| a[i][i]).sum();
                 assert!((values.iter().sum::<f64>() - trace).abs() < 1e-10);
@@ -1665,15 +1672,7 @@ mod tests {
         let mut cases: Vec<([[f64; 8]; 8], usize)> = Vec::new();
         for _ in 0..200 {
             for k in [2, 3, 4, 5, 6, 8] {
-                let mut a = [[0.0; 8]; 8];
-                for i in 0..k {
-                    for j in 0..=i {
-                        let v = rng.random_range(-10.0..10.0);
-                        a[i][j] = v;
-                        a[j][i] = v;
-                    }
-                }
-                cases.push((a, k));
+                cases.push((random_symmetric(&mut rng, k), k));
             }
         }
         let clusters: [&[f64]; 8] = [

@@ -34,8 +34,8 @@ pub const END: Subspace = Subspace {
                   of the wall (a corner or an edge, not an occlusion or the field of view)",
 };
 
-/// Smallest angle between two walls that share a corner, degrees (the laser front-end's
-/// default `min_corner_angle`, `slam_sensors::LineExtractorParams`).
+/// Smallest angle between two walls that share a corner, degrees (also the default
+/// `min_corner_angle` of the laser front-end, `slam_sensors::LineExtractorParams`).
 pub const MIN_CORNER_ANGLE_DEG: f64 = 30.0;
 
 /// Normal motion of the free endpoint about a shared corner, scaled by L/L_s (eq. 33).

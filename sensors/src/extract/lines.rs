@@ -54,7 +54,7 @@ impl Default for LineExtractorParams {
             min_points: 8,
             min_length: 0.4,
             corner_gap: 0.3,
-            min_corner_angle: 30f64.to_radians(),
+            min_corner_angle: slam_features::wall::MIN_CORNER_ANGLE_DEG.to_radians(),
             jump: 0.3,
             min_free_standing_length: 1.0,
             scale_by_residuals: false,

@@ -4,8 +4,9 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
+use slam_runtime::eval::stamped;
 use slam_runtime::{Config, Observer, PostProcessOutput, RunMetrics, RunOutput};
-use slam_sensors::data::write_atomically;
+use slam_sensors::data::{write_atomically, write_tum};
 
 use crate::error::{CliError, Result};
 use crate::figures::{run_figure, stage_figure};
@@ -333,12 +334,18 @@ fn write_outputs(
 }
 
 /// The outputs of a post-processing stage, in a folder of its name: `map.json`,
-/// `metrics.json`, and its figures (`map.svg`, `map.png` with the points it used,
-/// `map-walls.png` without).
+/// `metrics.json`, `trajectory.tum` (the poses it used) and its figures (`map.svg`,
+/// `map.png` with the points it used, `map-walls.png` without).
 fn write_stage(dir: &Path, stage: &PostProcessOutput, data: &str, plots: bool) -> Result<()> {
     let folder = dir.join(&stage.name);
     create_dir(&folder)?;
     write_text(&folder, "map.json", &plain_map_json(&stage.map)?)?;
+    if !stage.path.is_empty() {
+        write_tum(
+            &folder.join("trajectory.tum"),
+            &stamped(stage.path.iter().copied()),
+        )?;
+    }
     write_json(&folder, "metrics.json", &stage.metrics)?;
     if plots {
         let with_points = stage_figure(stage, data, true);
@@ -921,6 +928,37 @@ mod tests {
         for file in ["map.svg", "map.png", "map-walls.png"] {
             assert!(stage.join(file).exists(), "{file} missing");
         }
+    }
+
+    #[test]
+    fn a_relocalize_stage_writes_a_path_that_fits_the_walls_at_least_as_well() {
+        let dir = temp_dir("relocalize");
+        let world = short_world(dir.path());
+        let text = format!(
+            "[data]\nspec = \"world:{}\"\n[[postprocess]]\ntype = \"relocalize\"\n\
+             [output]\ndir = \"{}\"\nplots = false\n",
+            world.display(),
+            dir.path().join("out").display()
+        );
+        let config = Config::from_toml(&text, "test").unwrap();
+        let summary = run_config(&config, true).unwrap();
+        assert!(summary.contains("relocalize:"), "{summary}");
+        let stage = dir.path().join("out/relocalize");
+        let lines = |path: &Path| std::fs::read_to_string(path).unwrap().lines().count();
+        assert_eq!(
+            lines(&stage.join("trajectory.tum")),
+            lines(&dir.path().join("out/trajectory.tum"))
+        );
+        let metrics = read_json(&stage.join("metrics.json"));
+        let number = |key: &str| metrics[key].as_f64().unwrap();
+        assert!(number("relocalized") >= 0.9 * number("scans"), "{metrics}");
+        let (before, after) = (
+            number("median_point_to_wall_before_m"),
+            number("median_point_to_wall_after_m"),
+        );
+        assert!(after <= before, "median {before} -> {after}");
+        let (before, after) = (number("ate_rmse_before_m"), number("ate_rmse_after_m"));
+        assert!(after <= 1.2 * before, "ATE {before} -> {after}");
     }
 
     /// The Intel lab with its SLAM-corrected poses (about 160,000 points): run with

@@ -9,7 +9,7 @@ use slam_runtime::Config;
 const ESTIMATORS: [&str; 4] = ["ekf", "fastslam", "ipslam", "dead-reckoning"];
 const FRONTENDS: [&str; 3] = ["features", "scan-points", "none"];
 const WALL_MODELS: [&str; 2] = ["mspace", "endpoints"];
-const STAGES: [&str; 1] = ["em-polygon"];
+const STAGES: [&str; 2] = ["em-polygon", "relocalize"];
 
 /// Parses `text`, writes it, parses that and writes it again: both writings agree. Returns
 /// the writing as a TOML value.

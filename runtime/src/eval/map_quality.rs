@@ -291,7 +291,7 @@ fn union_length(mut intervals: Vec<(f64, f64)>) -> f64 {
 
 /// Wall segments binned by the grid cells their bounding boxes touch, for nearest-wall
 /// queries; a query searches rings of cells outwards until no closer wall can remain.
-struct SegmentGrid<'a> {
+pub(crate) struct SegmentGrid<'a> {
     cell: f64,
     walls: &'a [(Vector2<f64>, Vector2<f64>)],
     cells: std::collections::HashMap<(i64, i64), Vec<usize>>,
@@ -301,7 +301,8 @@ struct SegmentGrid<'a> {
 }
 
 impl<'a> SegmentGrid<'a> {
-    fn new(walls: &'a [(Vector2<f64>, Vector2<f64>)], cell: f64) -> Self {
+    /// A grid of `cell`-sized squares over `walls`.
+    pub(crate) fn new(walls: &'a [(Vector2<f64>, Vector2<f64>)], cell: f64) -> Self {
         let mut cells: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();
         let key = |v: f64| (v / cell).floor() as i64;
         let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
@@ -360,6 +361,34 @@ impl<'a> SegmentGrid<'a> {
     }
 }
 
+impl SegmentGrid<'_> {
+    /// The wall nearest to `p` if it lies within `reach` (m), with its distance.
+    pub(crate) fn nearest_within(&self, p: &Vector2<f64>, reach: f64) -> Option<(usize, f64)> {
+        let (cx, cy) = (
+            (p.x / self.cell).floor() as i64,
+            (p.y / self.cell).floor() as i64,
+        );
+        let rings = (reach / self.cell).ceil() as i64 + 1;
+        let mut best: Option<(usize, f64)> = None;
+        for ring in 0..=rings {
+            let found = best.map_or(reach, |(_, d)| d);
+            if (ring as f64 - 1.0) * self.cell > found {
+                break;
+            }
+            for (x, y) in ring_cells(cx, cy, ring) {
+                for &k in self.cells.get(&(x, y)).into_iter().flatten() {
+                    let (a, b) = &self.walls[k];
+                    let distance = point_to_segment(p, a, b);
+                    if distance <= reach && best.is_none_or(|(_, d)| distance < d) {
+                        best = Some((k, distance));
+                    }
+                }
+            }
+        }
+        best
+    }
+}
+
 /// The cells at Chebyshev distance `ring` from `(cx, cy)`.
 fn ring_cells(cx: i64, cy: i64, ring: i64) -> Vec<(i64, i64)> {
     if ring == 0 {
@@ -405,6 +434,17 @@ mod tests {
                 .map(|(a, b)| point_to_segment(&p, a, b))
                 .fold(f64::INFINITY, f64::min);
             assert!((grid.distance(&p) - full).abs() < 1e-12, "at {p:?}");
+            // Within a reach: the same wall's distance, or none when the nearest is farther.
+            for reach in [0.1, 0.5, 2.0] {
+                match grid.nearest_within(&p, reach) {
+                    Some((k, d)) => {
+                        assert!((d - full).abs() < 1e-12, "at {p:?}");
+                        let (a, b) = &walls[k];
+                        assert!((point_to_segment(&p, a, b) - full).abs() < 1e-12);
+                    }
+                    None => assert!(full > reach, "at {p:?}: {full} within {reach}"),
+                }
+            }
         }
     }
 

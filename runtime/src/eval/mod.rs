@@ -29,6 +29,7 @@ pub use map::{
     MapError, confirmed, coordinate_covariance, feature_counts, map_error_against_landmarks,
     map_error_against_truth, shared_dims,
 };
+pub(crate) use map_quality::SegmentGrid;
 pub use map_quality::{
     DEFAULT_SAMPLE_SIZE, DOUBLED_ANGLE_DEG, DOUBLED_DISTANCE_M, MapQuality, ScanSample,
     map_quality, wall_segments,

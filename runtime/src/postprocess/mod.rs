@@ -4,9 +4,11 @@
 //!
 //! Stages are found by name ([`PostProcessConfig`], the `type` of each `[[postprocess]]`
 //! table): `"em-polygon"` ([`EmPolygonConfig`]), the polygonal approximation of the scans
-//! registered by the estimated or the given poses.
+//! registered by the estimated or the given poses; `"relocalize"` ([`RelocalizeConfig`]),
+//! every scan placed again against the final wall map.
 
 mod em_polygon;
+mod relocalize;
 
 use std::fmt::Debug;
 
@@ -18,6 +20,7 @@ use crate::record::Recorder;
 use crate::session::Observer;
 
 pub use em_polygon::{EmPolygonConfig, PoseSource};
+pub use relocalize::RelocalizeConfig;
 
 /// What a stage may read of a finished run.
 pub struct FinishedRun<'a> {

@@ -1,0 +1,638 @@
+//! `[[postprocess]] type = "relocalize"`: every scan placed again against the **final** wall
+//! map, so that the path and the map agree.
+//!
+//! A filter estimates the pose of a step against the map of that step; the map moves later
+//! (a loop closes, walls merge), and the early poses are not revisited. This stage takes
+//! the confirmed walls of the finished map and, for every laser scan, the pose that best
+//! fits the scan's returns to those walls: the maximum a posteriori pose under a prior with
+//! the estimate's covariance and a Cauchy-weighted point-to-wall distance per return
+//! (Gauss-Newton, returns paired with their nearest wall within a gate that narrows over the
+//! iterations). Scans are taken in order. Each is placed twice, with the prior at its
+//! estimate and at its estimate moved by the correction of the scan before (corrections
+//! vary slowly along the path: a stretch driven before a loop closed may sit far from where
+//! the final map puts it); the placement whose returns fit the walls better is kept. The
+//! map is not changed. Steps between scans, and scans with too few returns near a wall, keep the
+//! correction of the last placed scan.
+//!
+//! It writes the relocalized path (`relocalize/trajectory.tum`) and its figures: ATE against
+//! the data's poses and the median distance of the scan readings to the walls, before and
+//! after (`relocalize/metrics.json`). The run's own `trajectory.tum` stays the filter's.
+//!
+//! ```toml
+//! [[postprocess]]
+//! type = "relocalize"
+//! max_range = 20.0     # returns beyond this range are not used, m (0: all are)
+//! beam_step = 2        # every second return is used
+//! sigma = 0.03         # scale of the Cauchy weight of a return's distance to its wall, m
+//! gate = 0.4           # pairing reach at the first iteration, m (then gate / k) ...
+//! final_gate = 0.1     # ... but never below this, m
+//! iterations = 8
+//! min_pairs = 10       # a scan with fewer paired returns keeps its pose
+//! ```
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+use slam_core::nalgebra::{Matrix3, Vector2, Vector3};
+use slam_core::{Estimator, Pose2, Shape, UpdateReport};
+use slam_sensors::{Event, TimedEvent};
+
+use super::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
+use crate::error::{Result, RuntimeError};
+use crate::eval::{SegmentGrid, confirmed, map_quality, wall_segments};
+use crate::session::Observer;
+
+/// The `[[postprocess]]` table of `type = "relocalize"`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RelocalizeConfig {
+    /// Returns beyond this range are not used, m (0: all are).
+    pub max_range: f64,
+    /// Every `beam_step`-th return of a scan is used.
+    pub beam_step: usize,
+    /// Scale of the Cauchy weight of a return's distance to its wall, m.
+    pub sigma: f64,
+    /// Pairing reach at the first iteration, m; at iteration `k` (from 1) it is `gate / k`.
+    pub gate: f64,
+    /// The smallest pairing reach, m.
+    pub final_gate: f64,
+    /// Gauss-Newton iterations per scan at most.
+    pub iterations: usize,
+    /// A scan with fewer returns paired with a wall keeps its estimated pose.
+    pub min_pairs: usize,
+}
+
+impl Default for RelocalizeConfig {
+    fn default() -> Self {
+        RelocalizeConfig {
+            max_range: 20.0,
+            beam_step: 2,
+            sigma: 0.03,
+            gate: 0.4,
+            final_gate: 0.1,
+            iterations: 8,
+            min_pairs: 10,
+        }
+    }
+}
+
+#[typetag::serde(name = "relocalize")]
+impl PostProcessConfig for RelocalizeConfig {
+    fn validate(&self) -> Result<()> {
+        let positive = [
+            ("sigma", self.sigma),
+            ("gate", self.gate),
+            ("final_gate", self.final_gate),
+        ];
+        for (name, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(RuntimeError::setting(
+                    "postprocess",
+                    format!("relocalize {name} must be positive, got {value}"),
+                ));
+            }
+        }
+        if !(self.max_range.is_finite() && self.max_range >= 0.0) {
+            return Err(RuntimeError::setting(
+                "postprocess",
+                format!(
+                    "relocalize max_range must be 0 or positive, got {}",
+                    self.max_range
+                ),
+            ));
+        }
+        if self.beam_step == 0 || self.iterations == 0 {
+            return Err(RuntimeError::setting(
+                "postprocess",
+                "relocalize beam_step and iterations must be at least 1",
+            ));
+        }
+        if self.final_gate > self.gate {
+            return Err(RuntimeError::setting(
+                "postprocess",
+                format!(
+                    "relocalize final_gate ({}) must not exceed gate ({})",
+                    self.final_gate, self.gate
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    fn build(&self) -> Result<Box<dyn PostProcess>> {
+        self.validate()?;
+        Ok(Box::new(Relocalize {
+            config: self.clone(),
+            scans: Vec::new(),
+        }))
+    }
+}
+
+/// A scan's kept returns in the robot frame, with its time.
+struct RobotScan {
+    time: f64,
+    in_robot: Vec<Vector2<f64>>,
+}
+
+/// The stage at work: it keeps every scan's used returns.
+struct Relocalize {
+    config: RelocalizeConfig,
+    scans: Vec<RobotScan>,
+}
+
+impl Observer for Relocalize {
+    fn event(
+        &mut self,
+        event: &TimedEvent,
+        _: Option<&UpdateReport>,
+        _: &dyn Estimator<Pose2>,
+    ) -> Result<()> {
+        let Event::Scan {
+            scan,
+            robot_from_sensor,
+        } = &event.event
+        else {
+            return Ok(());
+        };
+        let max_range = self.config.max_range;
+        let rotation = robot_from_sensor.rotation();
+        let in_robot = scan
+            .points()
+            .iter()
+            .filter(|p| max_range <= 0.0 || p.range <= max_range)
+            .step_by(self.config.beam_step)
+            .map(|p| {
+                let q = robot_from_sensor.translation
+                    + rotation * Vector3::new(p.position.x, p.position.y, 0.0);
+                q.xy()
+            })
+            .collect();
+        self.scans.push(RobotScan {
+            time: event.time,
+            in_robot,
+        });
+        Ok(())
+    }
+}
+
+/// The stage's figures (`relocalize/metrics.json`).
+#[derive(Serialize)]
+struct Metrics {
+    /// Scans kept.
+    scans: usize,
+    /// Scans whose pose was re-estimated.
+    relocalized: usize,
+    /// Scans that kept the correction of the scan before (fewer than `min_pairs` returns
+    /// near a wall).
+    kept: usize,
+    /// Confirmed walls the scans were fitted to.
+    walls: usize,
+    /// Mean and largest change of position, m, and mean change of heading, rad.
+    mean_shift_m: f64,
+    max_shift_m: f64,
+    mean_turn_rad: f64,
+    /// ATE (SE(2)-aligned RMSE, m) of the estimate and of the relocalized path against the
+    /// data's poses, where the data have some.
+    ate_rmse_before_m: Option<f64>,
+    ate_rmse_after_m: Option<f64>,
+    /// Median distance of the run's sample of scan readings to the nearest wall, placed by
+    /// the estimate and by the relocalized path, m.
+    median_point_to_wall_before_m: Option<f64>,
+    median_point_to_wall_after_m: Option<f64>,
+    /// Seconds of the relocalization alone.
+    time_s: f64,
+}
+
+impl PostProcess for Relocalize {
+    fn finish(self: Box<Self>, run: &FinishedRun<'_>) -> Result<PostProcessOutput> {
+        if self.scans.is_empty() {
+            return Err(RuntimeError::Data(format!(
+                "{}: no laser scans, nothing for relocalize to place",
+                run.name
+            )));
+        }
+        let estimator = run.estimator;
+        let shapes: Vec<Shape> = estimator
+            .map()
+            .iter()
+            .filter(|(id, _)| confirmed(estimator, *id))
+            .filter_map(|(_, feature)| feature.shape())
+            .collect();
+        let walls = wall_segments(&shapes);
+        if walls.is_empty() {
+            return Err(RuntimeError::Data(format!(
+                "{}: the map has no confirmed wall, nothing for relocalize to fit the scans to",
+                run.name
+            )));
+        }
+        let clock = Instant::now();
+        let before = run.map_poses();
+        let covariance_at = |time: f64| {
+            let records = &run.record.estimates;
+            let k = records.partition_point(|r| r.time < time);
+            records
+                .get(k)
+                .filter(|r| r.time == time)
+                .map_or(Matrix3::zeros(), |r| r.covariance)
+        };
+        let grid = SegmentGrid::new(&walls, 1.0);
+        let mut corrections: Vec<(f64, Pose2)> = Vec::with_capacity(self.scans.len());
+        let mut placed = 0;
+        // Each scan is placed twice: from its estimate, and from the estimate moved by the
+        // correction of the last placed scan (corrections vary slowly along the path, and a
+        // stretch driven before a loop closed may sit far from where the final map puts it).
+        // The placement whose returns fit the walls better wins.
+        let mut world_from_estimate = Pose2::identity();
+        for scan in &self.scans {
+            let Some(k) = index_at(&before, scan.time) else {
+                continue;
+            };
+            let estimate = before[k].1;
+            let covariance = covariance_at(scan.time);
+            let place = |prior: &Pose2| {
+                relocalize(
+                    &self.config,
+                    &grid,
+                    &walls,
+                    &scan.in_robot,
+                    prior,
+                    &covariance,
+                )
+            };
+            let carried = world_from_estimate.compose(&estimate);
+            let from_carried = (world_from_estimate.translation().norm() > 1e-9
+                || world_from_estimate.theta != 0.0)
+                .then(|| place(&carried))
+                .flatten();
+            let best = [place(&estimate), from_carried]
+                .into_iter()
+                .flatten()
+                .min_by(|a, b| a.misfit.total_cmp(&b.misfit));
+            if let Some(placement) = best {
+                world_from_estimate = placement.world_from_robot.compose(&estimate.inverse());
+                placed += 1;
+            }
+            corrections.push((scan.time, world_from_estimate));
+        }
+        let after = corrected(&before, &corrections);
+        let time_s = clock.elapsed().as_secs_f64();
+        let metrics = self.metrics(run, &walls, &before, &after, placed, time_s)?;
+        let summary = summary(&metrics);
+        let points = run
+            .record
+            .scan_sample
+            .placed(|t| pose_exactly_at(&after, t));
+        Ok(PostProcessOutput {
+            name: "relocalize".into(),
+            map: estimator.map().clone(),
+            points,
+            path: after,
+            metrics: serde_json::to_value(&metrics)
+                .map_err(|e| RuntimeError::Invariant(format!("relocalize metrics: {e}")))?,
+            summary,
+        })
+    }
+}
+
+impl Relocalize {
+    /// The stage's figures.
+    fn metrics(
+        &self,
+        run: &FinishedRun<'_>,
+        walls: &[(Vector2<f64>, Vector2<f64>)],
+        before: &[(f64, Pose2)],
+        after: &[(f64, Pose2)],
+        relocalized: usize,
+        time_s: f64,
+    ) -> Result<Metrics> {
+        let shifts: Vec<(f64, f64)> = before
+            .iter()
+            .zip(after)
+            .map(|((_, b), (_, a))| {
+                let d = b.between(a);
+                (d.translation().norm(), d.theta.abs())
+            })
+            .collect();
+        let n = shifts.len().max(1) as f64;
+        let ate = |path: &[(f64, Pose2)]| -> Result<Option<f64>> {
+            Ok(run.record.path_errors(path)?.map(|e| e.ate_rmse_m))
+        };
+        let median = |path: &[(f64, Pose2)]| {
+            let points = run.record.scan_sample.placed(|t| pose_exactly_at(path, t));
+            map_quality(walls, &points).median_point_to_wall_m
+        };
+        Ok(Metrics {
+            scans: self.scans.len(),
+            relocalized,
+            kept: self.scans.len() - relocalized,
+            walls: walls.len(),
+            mean_shift_m: shifts.iter().map(|s| s.0).sum::<f64>() / n,
+            max_shift_m: shifts.iter().map(|s| s.0).fold(0.0, f64::max),
+            mean_turn_rad: shifts.iter().map(|s| s.1).sum::<f64>() / n,
+            ate_rmse_before_m: ate(before)?,
+            ate_rmse_after_m: ate(after)?,
+            median_point_to_wall_before_m: median(before),
+            median_point_to_wall_after_m: median(after),
+            time_s,
+        })
+    }
+}
+
+/// The summary line of the stage.
+fn summary(m: &Metrics) -> String {
+    let metres = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{v:.3} m"));
+    let centimetres = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{:.1} cm", 100.0 * v));
+    format!(
+        "relocalize: {} of {} scans placed against {} walls ({:.1} s); ATE {} -> {}; median \
+         scan reading to wall {} -> {}",
+        m.relocalized,
+        m.scans,
+        m.walls,
+        m.time_s,
+        metres(m.ate_rmse_before_m),
+        metres(m.ate_rmse_after_m),
+        centimetres(m.median_point_to_wall_before_m),
+        centimetres(m.median_point_to_wall_after_m),
+    )
+}
+
+/// The index of the pose at `time` exactly.
+fn index_at(path: &[(f64, Pose2)], time: f64) -> Option<usize> {
+    let k = path.partition_point(|(t, _)| *t < time);
+    path.get(k).filter(|(t, _)| *t == time).map(|_| k)
+}
+
+/// The pose at `time` exactly.
+fn pose_exactly_at(path: &[(f64, Pose2)], time: f64) -> Option<Pose2> {
+    index_at(path, time).map(|k| path[k].1)
+}
+
+/// `path` with every pose moved by the correction (applied on the left) of the last scan at
+/// or before it; poses before the first scan are unchanged.
+fn corrected(path: &[(f64, Pose2)], corrections: &[(f64, Pose2)]) -> Vec<(f64, Pose2)> {
+    let mut next = 0;
+    let mut current = Pose2::identity();
+    path.iter()
+        .map(|&(time, pose)| {
+            while next < corrections.len() && corrections[next].0 <= time {
+                current = corrections[next].1;
+                next += 1;
+            }
+            (time, current.compose(&pose))
+        })
+        .collect()
+}
+
+/// A scan placed against the walls: its pose and how well its returns fit them.
+#[derive(Clone, Copy, Debug)]
+struct Placement {
+    world_from_robot: Pose2,
+    /// The Cauchy cost of the returns at the final gate (a return farther than the gate from
+    /// every wall costs as much as one at the gate): lower is a better fit to the map.
+    misfit: f64,
+}
+
+/// The maximum a posteriori pose of one scan (returns `in_robot`) against the walls, with
+/// `prior` and its covariance as prior; `None` when fewer than `min_pairs` returns lie near
+/// a wall or the normal equations are singular.
+fn relocalize(
+    config: &RelocalizeConfig,
+    grid: &SegmentGrid<'_>,
+    walls: &[(Vector2<f64>, Vector2<f64>)],
+    in_robot: &[Vector2<f64>],
+    prior: &Pose2,
+    covariance: &Matrix3<f64>,
+) -> Option<Placement> {
+    // A floor of (1 mm)^2 and (0.3 mrad)^2 keeps an exactly known pose (the start) invertible.
+    let floor = Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 1e-7));
+    let information = (covariance + floor).try_inverse()?;
+    let prior = prior.to_vector();
+    let mut state = prior;
+    for iteration in 1..=config.iterations {
+        let gate = (config.gate / iteration as f64).max(config.final_gate);
+        let world_from_robot = Pose2::new(state[0], state[1], state[2]);
+        let mut hessian = information;
+        let mut delta = state - prior;
+        delta[2] = slam_core::wrap_angle(delta[2]);
+        let mut gradient = information * delta;
+        let mut paired = 0;
+        for p in in_robot {
+            let (in_world, d_pose, _) = world_from_robot.transform_point_with_jacobians(p);
+            let Some((normal, residual)) = wall_residual(grid, walls, &in_world, gate) else {
+                continue;
+            };
+            let jacobian = (normal.transpose() * d_pose).transpose();
+            let weight = cauchy_weight(residual, config.sigma);
+            hessian += jacobian * jacobian.transpose() * weight;
+            gradient += jacobian * (weight * residual);
+            paired += 1;
+        }
+        if paired < config.min_pairs {
+            return None;
+        }
+        let step = hessian.cholesky()?.solve(&(-gradient));
+        state += step;
+        if step.amax() < 1e-6 {
+            break;
+        }
+    }
+    let world_from_robot = Pose2::new(state[0], state[1], state[2]);
+    let mut paired = 0;
+    let mut misfit = 0.0;
+    for p in in_robot {
+        let in_world = world_from_robot.transform_point(p);
+        let residual = match wall_residual(grid, walls, &in_world, config.final_gate) {
+            Some((_, residual)) => {
+                paired += 1;
+                residual
+            }
+            None => config.final_gate,
+        };
+        misfit += cauchy_cost(residual, config.sigma);
+    }
+    (paired >= config.min_pairs).then_some(Placement {
+        world_from_robot,
+        misfit,
+    })
+}
+
+/// The unit normal of the wall nearest to `in_world` within `gate` and the signed distance of
+/// the point from the wall's line.
+fn wall_residual(
+    grid: &SegmentGrid<'_>,
+    walls: &[(Vector2<f64>, Vector2<f64>)],
+    in_world: &Vector2<f64>,
+    gate: f64,
+) -> Option<(Vector2<f64>, f64)> {
+    let (k, _) = grid.nearest_within(in_world, gate)?;
+    let (a, b) = walls[k];
+    let along = (b - a).try_normalize(0.0)?;
+    let normal = Vector2::new(-along.y, along.x);
+    Some((normal, normal.dot(&(in_world - a))))
+}
+
+/// The weight of a residual under a Cauchy loss of scale `2 sigma` (the derivative of
+/// [`cauchy_cost`] divided by the residual).
+fn cauchy_weight(residual: f64, sigma: f64) -> f64 {
+    let scaled = residual / (2.0 * sigma);
+    1.0 / ((1.0 + scaled * scaled) * sigma * sigma)
+}
+
+/// The Cauchy loss of scale `2 sigma`, in units of `sigma^2`: `2 ln(1 + (r / 2 sigma)^2)`.
+fn cauchy_cost(residual: f64, sigma: f64) -> f64 {
+    let scaled = residual / (2.0 * sigma);
+    2.0 * (1.0 + scaled * scaled).ln()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    type Segment = (Vector2<f64>, Vector2<f64>);
+
+    fn v(x: f64, y: f64) -> Vector2<f64> {
+        Vector2::new(x, y)
+    }
+
+    /// A 10 m square room and the returns of a robot at `world_from_robot` inside it, one
+    /// per degree, from the true pose.
+    fn room_scan(world_from_robot: &Pose2) -> (Vec<Segment>, Vec<Vector2<f64>>) {
+        let corners = [v(-5.0, -5.0), v(5.0, -5.0), v(5.0, 5.0), v(-5.0, 5.0)];
+        let walls: Vec<_> = (0..4).map(|k| (corners[k], corners[(k + 1) % 4])).collect();
+        let points = (0..360)
+            .map(|deg| {
+                let angle = (deg as f64).to_radians() + world_from_robot.theta;
+                let direction = v(angle.cos(), angle.sin());
+                let origin = world_from_robot.translation();
+                // The nearest wall along the ray.
+                let range = walls
+                    .iter()
+                    .filter_map(|(a, b)| {
+                        let edge = b - a;
+                        let det = direction.x * (-edge.y) + edge.x * direction.y;
+                        let rel = a - origin;
+                        let t = (rel.x * (-edge.y) + edge.x * rel.y) / det;
+                        let s = (direction.x * rel.y - direction.y * rel.x) / det;
+                        (det.abs() > 1e-12 && t > 0.0 && (0.0..=1.0).contains(&s)).then_some(t)
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                world_from_robot.inverse_transform_point(&(origin + direction * range))
+            })
+            .collect();
+        (walls, points)
+    }
+
+    #[test]
+    fn a_scan_is_pulled_onto_the_walls_from_a_wrong_estimate() {
+        let truth = Pose2::new(1.0, -0.5, 0.3);
+        let (walls, points) = room_scan(&truth);
+        let grid = SegmentGrid::new(&walls, 1.0);
+        let estimate = Pose2::new(1.12, -0.41, 0.33);
+        let loose = Matrix3::from_diagonal(&Vector3::new(0.04, 0.04, 0.01));
+        let config = RelocalizeConfig::default();
+        let found = relocalize(&config, &grid, &walls, &points, &estimate, &loose)
+            .unwrap()
+            .world_from_robot;
+        let error = truth.between(&found);
+        assert!(error.translation().norm() < 1e-3, "{found:?}");
+        assert!(error.theta.abs() < 1e-4, "{found:?}");
+    }
+
+    #[test]
+    fn a_certain_estimate_is_kept_and_a_scan_far_from_the_walls_is_not_placed() {
+        let truth = Pose2::new(1.0, -0.5, 0.3);
+        let (walls, points) = room_scan(&truth);
+        let grid = SegmentGrid::new(&walls, 1.0);
+        let estimate = Pose2::new(1.05, -0.5, 0.3);
+        let config = RelocalizeConfig::default();
+        // A prior at the floor ((1 mm)^2) holds against 5 cm of disagreement of the returns;
+        // a loose one gives way to them.
+        let certain = Matrix3::zeros();
+        let kept = relocalize(&config, &grid, &walls, &points, &estimate, &certain)
+            .unwrap()
+            .world_from_robot;
+        let shift = estimate.between(&kept).translation().norm();
+        assert!(shift < 0.01, "moved {shift} m");
+        let loose = Matrix3::from_diagonal(&Vector3::new(0.04, 0.04, 0.01));
+        let moved = relocalize(&config, &grid, &walls, &points, &estimate, &loose)
+            .unwrap()
+            .world_from_robot;
+        assert!(
+            truth.between(&moved).translation().norm() < 1e-3,
+            "{moved:?}"
+        );
+        // Placed 20 m away, no return lies near a wall: no pose.
+        let far = Pose2::new(-20.0, 0.0, 0.0);
+        assert!(relocalize(&config, &grid, &walls, &points, &far, &loose).is_none());
+    }
+
+    #[test]
+    fn the_placement_that_fits_the_walls_better_has_the_lower_misfit() {
+        // Estimated 0.8 m off along x, beyond the gate, with a tight prior: the placement
+        // from there stays off the walls; the one from a carried correction finds them.
+        let truth = Pose2::new(1.0, -0.5, 0.3);
+        let (walls, points) = room_scan(&truth);
+        let grid = SegmentGrid::new(&walls, 1.0);
+        let config = RelocalizeConfig::default();
+        let tight = Matrix3::from_diagonal(&Vector3::new(1e-4, 1e-4, 1e-5));
+        let off = Pose2::new(1.8, -0.5, 0.3);
+        let carried = Pose2::new(1.03, -0.48, 0.3);
+        let from_off = relocalize(&config, &grid, &walls, &points, &off, &tight).unwrap();
+        let from_carried = relocalize(&config, &grid, &walls, &points, &carried, &tight).unwrap();
+        assert!(
+            truth
+                .between(&from_off.world_from_robot)
+                .translation()
+                .norm()
+                > 0.5
+        );
+        assert!(
+            truth
+                .between(&from_carried.world_from_robot)
+                .translation()
+                .norm()
+                < 0.05
+        );
+        assert!(
+            from_carried.misfit < from_off.misfit,
+            "{from_carried:?} against {from_off:?}"
+        );
+    }
+
+    #[test]
+    fn steps_between_scans_keep_the_last_correction() {
+        let path: Vec<(f64, Pose2)> = (0..5)
+            .map(|k| (k as f64, Pose2::new(k as f64, 0.0, 0.0)))
+            .collect();
+        let shift = Pose2::new(0.0, 0.5, 0.0);
+        let corrections = [(1.0, shift), (3.0, Pose2::identity())];
+        let moved = corrected(&path, &corrections);
+        let ys: Vec<f64> = moved.iter().map(|(_, p)| p.y).collect();
+        assert_eq!(ys, vec![0.0, 0.5, 0.5, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn bad_settings_are_refused() {
+        for bad in [
+            RelocalizeConfig {
+                sigma: 0.0,
+                ..Default::default()
+            },
+            RelocalizeConfig {
+                beam_step: 0,
+                ..Default::default()
+            },
+            RelocalizeConfig {
+                max_range: f64::NAN,
+                ..Default::default()
+            },
+            RelocalizeConfig {
+                final_gate: 1.0,
+                gate: 0.5,
+                ..Default::default()
+            },
+        ] {
+            assert!(bad.validate().is_err(), "{bad:?}");
+        }
+    }
+}

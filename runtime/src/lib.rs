@@ -15,7 +15,8 @@
 //!   [`Observer`]s; [`Recorder`] keeps the standard record.
 //! - [`run()`]: a whole run from a config; [`eval`]: ATE, RPE, NEES / NIS and map error, and
 //!   [`RunMetrics`] (`metrics.json`).
-//! - [`postprocess`]: stages after the estimator (EM polygonal approximation).
+//! - [`postprocess`]: stages after the estimator (EM polygonal approximation, relocalization
+//!   of the scans against the final map).
 //!
 //! ```no_run
 //! use slam_runtime::{Config, RunMetrics, run};

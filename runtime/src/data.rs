@@ -18,6 +18,7 @@ use slam_sensors::data::{
 use slam_sensors::laser_odometry::{
     LaserOdometryCounts, LaserOdometryParams, laser_odometry_stream,
 };
+use slam_sensors::odometry::OdometryNoise;
 use slam_sensors::sim::{TrueMap, World, simulate_stream};
 
 use crate::error::{Result, RuntimeError};
@@ -196,6 +197,53 @@ impl McapConfig {
     }
 }
 
+/// The `[data.carmen]` table: settings of the CARMEN reader.
+///
+/// ```toml
+/// [data.carmen.odometry_noise]   # of the motion between two scans (slam_sensors::odometry::OdometryNoise)
+/// translation_per_metre = 0.05
+/// rotation_per_radian = 0.05
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CarmenConfig {
+    /// Noise of the odometry increment between two scans (standard deviations growing with
+    /// the motion).
+    pub odometry_noise: OdometryNoise,
+}
+
+impl CarmenConfig {
+    /// The reader's options; an error when a noise term is negative or not finite.
+    pub fn options(&self) -> Result<CarmenOptions> {
+        let n = &self.odometry_noise;
+        let terms = [
+            ("translation_per_metre", n.translation_per_metre),
+            ("translation_per_radian", n.translation_per_radian),
+            ("rotation_per_radian", n.rotation_per_radian),
+            ("rotation_per_metre", n.rotation_per_metre),
+            ("floor_translation", n.floor_translation),
+            ("floor_rotation", n.floor_rotation),
+        ];
+        if let Some((name, value)) = terms.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+            return Err(RuntimeError::setting(
+                "data.carmen.odometry_noise",
+                format!("{name} must be finite and non-negative, got {value}"),
+            ));
+        }
+        if n.floor_translation == 0.0 || n.floor_rotation == 0.0 {
+            return Err(RuntimeError::setting(
+                "data.carmen.odometry_noise",
+                "floor_translation and floor_rotation must be positive (a motion of zero would \
+                 have a singular covariance)",
+            ));
+        }
+        Ok(CarmenOptions {
+            odometry_noise: n.clone(),
+            ..CarmenOptions::default()
+        })
+    }
+}
+
 /// The `[data]` table.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -215,6 +263,8 @@ pub struct DataConfig {
     pub mrclam: MrclamConfig,
     /// ROS 2 bag (MCAP) topics and frames.
     pub mcap: McapConfig,
+    /// CARMEN reader settings.
+    pub carmen: CarmenConfig,
     /// Replace the data's motion by odometry built from its reference poses with seeded
     /// noise (for logs without raw odometry, such as the Radish corrected logs).
     pub odometry_from_poses: Option<PoseOdometryParams>,
@@ -233,6 +283,7 @@ impl Default for DataConfig {
             victoria_park: VictoriaParkConfig::default(),
             mrclam: MrclamConfig::default(),
             mcap: McapConfig::default(),
+            carmen: CarmenConfig::default(),
             odometry_from_poses: None,
             laser_odometry: None,
         }
@@ -301,7 +352,7 @@ impl DataConfig {
             DataSpec::Sim => simulated(&World::default_world())?,
             DataSpec::World(path) => simulated(&World::from_file(path)?)?,
             DataSpec::Carmen(path) => (
-                stream_carmen(path, &CarmenOptions::default())?,
+                stream_carmen(path, &self.carmen.options()?)?,
                 None,
                 given(true),
             ),

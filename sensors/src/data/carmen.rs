@@ -33,16 +33,19 @@
 //! **Poses are references, not truth.** The robot pose of a laser line becomes an
 //! [`Event::GroundTruth`] with [`TruthKind::Reference`]: in the Radish "corrected" logs it is
 //! the output of another SLAM system (GMapping), written into both the `x y theta` and the
-//! `odom_*` fields. Their `ODOM` lines are close to those corrected poses too, so the motion
-//! increments of these logs are not raw odometry.
+//! `odom_*` fields. Their `ODOM` lines re-anchor the odometry at the corrected pose after
+//! every scan: an `ODOM` line right after a laser line that repeats its robot pose and is
+//! stamped out of order (0 or garbage) is read as a reset of the odometry frame, not as
+//! motion (its increment would be the corrected pose's correction, i.e. the reference leaking
+//! into the motion); the odometry continues from it, and a warning counts them. The motion
+//! between scans is then the raw odometry those logs carry.
 //!
 //! **Times are the logger timestamps** ([`Clock::Seconds`]): the last field of each line, so
 //! that outputs can be paired by time with other tools' results on the same log. Logs are
 //! not always clean, and events must stay in time order:
 //!
 //! - An `ODOM` line stamped more than [`STAMP_OUTLIER_S`] before the latest stamp read is out
-//!   of order (the Radish "corrected" logs follow each scan with an `ODOM` line of the
-//!   corrected pose stamped 0 or with a garbage value): its motion takes the time of the
+//!   of order (other than the re-anchoring lines above): its motion takes the time of the
 //!   record after it.
 //! - Motion between two scans never takes a time after the next scan's stamp, nor before the
 //!   time already written (odometry stamps jitter by up to a second in the Intel log).
@@ -148,8 +151,11 @@ struct Stamped {
 /// Reads a CARMEN log, plain or gzip-compressed (detected by its magic bytes).
 ///
 /// Each laser line gives an [`Event::Scan`] followed by an [`Event::GroundTruth`] of kind
-/// [`TruthKind::Reference`] with the line's robot pose; each `ODOM` line after the first gives
-/// an [`Event::Motion`] with the [`PoseIncrement`] from the previous `ODOM` pose. Event times
+/// [`TruthKind::Reference`] with the line's robot pose. The `ODOM` lines between two laser lines
+/// give one [`Event::Motion`] before the later one: the [`PoseIncrement`] from the odometry pose
+/// of the previous increment to the last `ODOM` pose (its noise, [`OdometryNoise`], is a model
+/// of the motion between scans: compounded over every record of a 40 Hz odometry instead, its
+/// covariance would shrink with the record rate; MRPT's CARMEN import does the same). Event times
 /// are the logger timestamps, repaired or replaced by line numbers as the [module](self)
 /// documentation says. Known lines with the wrong field count or with non-numeric or non-finite
 /// numbers are errors naming `file:line`. This is [`stream_carmen`] collected.
@@ -225,6 +231,9 @@ pub fn stream_carmen(path: &Path, options: &CarmenOptions) -> Result<EventStream
         skipped: skipped.clone(),
         file_max: None,
         previous_odometry: None,
+        pending_odometry: None,
+        last_laser_pose: None,
+        resets: 0,
         records: 0,
         scans: ScanEvidence::default(),
         times: Times::default(),
@@ -240,7 +249,14 @@ struct CarmenReader {
     skipped: SkipCounter,
     /// The largest reading of the file, once a line has needed it.
     file_max: Option<f64>,
+    /// The odometry pose of the last motion written (or of the first `ODOM` line).
     previous_odometry: Option<Pose2>,
+    /// The latest `ODOM` pose since, with its stamp and line: motion not written yet.
+    pending_odometry: Option<(Pose2, f64, usize)>,
+    /// The robot pose of the last laser line, until the next `ODOM` line.
+    last_laser_pose: Option<Pose2>,
+    /// `ODOM` lines that re-anchored the odometry at a scan's reference pose.
+    resets: usize,
     /// Laser and odometry lines read.
     records: usize,
     /// The unit evidence of the first scans.
@@ -254,12 +270,14 @@ struct CarmenReader {
 impl Step for CarmenReader {
     fn step(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<bool> {
         let Some(next) = self.lines.next() else {
+            self.flush_odometry(out)?;
             self.times.flush(f64::INFINITY, out);
             return self.end().map(|()| false);
         };
         let read = next.and_then(|(line, content)| self.read_line(line, &content, out));
         if read.is_err() {
             // The events of the lines before the error come first.
+            self.flush_odometry(out)?;
             self.times.flush(f64::INFINITY, out);
         }
         read.map(|()| true)
@@ -290,7 +308,17 @@ impl CarmenReader {
                         None => *self.file_max.insert(largest_range(path)?),
                     },
                 };
+                flush_odometry(
+                    &mut self.previous_odometry,
+                    &mut self.pending_odometry,
+                    &mut self.times,
+                    &self.options.odometry_noise,
+                    self.clock,
+                    path,
+                    out,
+                )?;
                 let pose = laser.robot_pose;
+                self.last_laser_pose = Some(pose);
                 let (scan, robot_from_sensor) = to_scan(laser, self.options.min_range, max_range)
                     .map_err(|e| at(path, line, e))?;
                 self.check_scan(&scan, line)?;
@@ -319,24 +347,20 @@ impl CarmenReader {
                 stamp,
             }) => {
                 self.records += 1;
-                let step = match self.previous_odometry {
-                    Some(previous) => Some(
-                        PoseIncrement::between(&previous, &pose, &self.options.odometry_noise)
-                            .map_err(|e| at(path, line, e))?,
-                    ),
-                    None => None,
-                };
-                self.previous_odometry = Some(pose);
-                let event = step.map(|step| Event::Motion(Box::new(step)));
-                if sequence {
-                    if let Some(event) = event {
-                        out.push_back(TimedEvent {
-                            time: line as f64,
-                            event,
-                        });
-                    }
+                let after_scan = self.last_laser_pose.take();
+                if !sequence && is_reset(after_scan, &pose, self.times.is_out_of_order(stamp)) {
+                    // The odometry frame moved to the reference pose: no motion.
+                    self.resets += 1;
+                    self.previous_odometry = Some(pose);
+                    return Ok(());
+                }
+                if self.previous_odometry.is_none() {
+                    self.previous_odometry = Some(pose);
                 } else {
-                    self.times.odometry(stamp, event, out);
+                    self.pending_odometry = Some((pose, stamp, line));
+                }
+                if !sequence {
+                    self.times.odometry(stamp, None, out);
                 }
             }
             None if content.trim_start().starts_with('#') => self.skipped.count("#"),
@@ -344,6 +368,19 @@ impl CarmenReader {
             None => {}
         }
         Ok(())
+    }
+
+    /// Writes the motion since the last increment (see [`flush_odometry`]).
+    fn flush_odometry(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<()> {
+        flush_odometry(
+            &mut self.previous_odometry,
+            &mut self.pending_odometry,
+            &mut self.times,
+            &self.options.odometry_noise,
+            self.clock,
+            self.lines.path(),
+            out,
+        )
     }
 
     /// Counts the impossible readings of a scan and gathers the unit evidence of the first
@@ -370,6 +407,15 @@ impl CarmenReader {
         if let Some(warning) = self.times.repairs() {
             self.skipped
                 .warn(format!("{}: logger {warning}", path.display()));
+        }
+        if self.resets > 0 {
+            self.skipped.warn(format!(
+                "{}: {} ODOM lines right after a scan repeat its reference pose with an \
+                 out-of-order stamp (the Radish corrected logs re-anchor the odometry at the \
+                 corrected pose): read as a reset of the odometry frame, not as motion",
+                path.display(),
+                self.resets
+            ));
         }
         self.scans.decide(path, line, &self.skipped)?;
         if self.records > 0 {
@@ -720,6 +766,46 @@ fn parse_robot_laser(fields: &Fields) -> Result<LaserLine> {
     })
 }
 
+/// Writes the motion from the odometry pose of the last increment (`previous`) to the latest
+/// `ODOM` pose (`pending`) as one increment, at that line's stamp (or line number).
+fn flush_odometry(
+    previous: &mut Option<Pose2>,
+    pending: &mut Option<(Pose2, f64, usize)>,
+    times: &mut Times,
+    noise: &OdometryNoise,
+    clock: Clock,
+    path: &Path,
+    out: &mut VecDeque<TimedEvent>,
+) -> Result<()> {
+    let (Some(from), Some((pose, stamp, line))) = (*previous, pending.take()) else {
+        return Ok(());
+    };
+    let step = PoseIncrement::between(&from, &pose, noise).map_err(|e| at(path, line, e))?;
+    *previous = Some(pose);
+    let event = Event::Motion(Box::new(step));
+    if clock == Clock::Sequence {
+        out.push_back(TimedEvent {
+            time: line as f64,
+            event,
+        });
+    } else {
+        times.odometry(stamp, Some(event), out);
+    }
+    Ok(())
+}
+
+/// Whether an `ODOM` line at `pose` right after a laser line at `after_scan` re-anchors the
+/// odometry frame rather than reporting motion: it repeats the scan's robot pose (the
+/// reference pose, in the Radish corrected logs) and its stamp is out of order (0 or garbage
+/// there). Its increment would be the reference's correction, not motion.
+fn is_reset(after_scan: Option<Pose2>, pose: &Pose2, out_of_order: bool) -> bool {
+    let same = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + a.abs().max(b.abs()));
+    out_of_order
+        && after_scan.is_some_and(|scan| {
+            same(scan.x, pose.x) && same(scan.y, pose.y) && same(scan.theta, pose.theta)
+        })
+}
+
 fn parse_odometry(fields: &Fields) -> Result<Pose2> {
     fields.expect_len(10, "ODOM")?;
     let [x, y, theta] = fields.f64s(1, "odometry pose")?;
@@ -927,21 +1013,68 @@ mod tests {
     }
 
     #[test]
+    fn a_corrected_log_re_anchors_its_odometry_at_each_scan() {
+        // The layout of the Radish "corrected" logs: each scan is followed by an ODOM line
+        // of the scan's (corrected) pose stamped 0, and the odometry goes on from there. The
+        // jump to it (0.3 -> 0.25 here) is the reference's correction, not motion.
+        let text = [
+            odom(0.0, "10.0"),
+            odom(0.3, "10.5"),
+            flaser(0.25, "10.5"),
+            odom(0.25, "0"),
+            "NEFF 3\n".to_string(),
+            odom(0.45, "10.9"),
+            odom(0.65, "11.2"),
+            flaser(0.6, "11.2"),
+            odom(0.6, "0"),
+        ]
+        .concat();
+        let data = read("corrected", &text, &CarmenOptions::default()).unwrap();
+        let motion: Vec<f64> = data
+            .events
+            .iter()
+            .filter_map(|e| match &e.event {
+                Event::Motion(step) => Some(step.predict(&Pose2::identity()).unwrap().pose.x),
+                _ => None,
+            })
+            .collect();
+        // One increment per scan interval: 0 -> 0.3, then 0.25 -> 0.65.
+        let expected = [0.3, 0.4];
+        assert_eq!(motion.len(), expected.len(), "{motion:?}");
+        for (got, want) in motion.iter().zip(expected) {
+            assert!((got - want).abs() < 1e-12, "{motion:?}");
+        }
+        assert_eq!(data.warnings.len(), 1, "{:?}", data.warnings);
+        assert!(
+            data.warnings[0].contains("2 ODOM lines right after a scan repeat its reference pose")
+        );
+        // An ODOM line at the scan's pose with a stamp in order is motion as usual (a raw log
+        // whose robot stood still), and so is one stamped 0 at another pose (above).
+        let still = [odom(0.0, "1.0"), flaser(0.0, "1.5"), odom(0.0, "2.0")].concat();
+        let data = read("still", &still, &CarmenOptions::default()).unwrap();
+        assert_eq!(timeline(&data), [(1.5, 'S'), (2.0, 'M')]);
+        assert!(data.warnings.is_empty(), "{:?}", data.warnings);
+    }
+
+    #[test]
     fn times_are_logger_timestamps_repaired_where_out_of_order() {
-        // The layout of the Radish "corrected" logs: each scan follows an ODOM line with its
-        // stamp and is followed by an ODOM line of the corrected pose stamped 0; odometry
-        // stamps jitter (10.7 after 10.9).
+        // The motion between two scans is one increment stamped as the last ODOM line
+        // before the later scan: stamped 0 (out of order) it takes the time of the record
+        // after it, the scan; stamped after the scan (jitter) it takes the scan's time. The
+        // lines are not the scans' poses (see
+        // `a_corrected_log_re_anchors_its_odometry_at_each_scan`).
         let text = [
             odom(0.0, "10.0"),
             odom(0.1, "10.5"),
             flaser(0.1, "10.5"),
-            odom(0.1, "0"),
+            odom(0.15, "0"),
             "NEFF 3\n".to_string(),
             odom(0.2, "10.9"),
-            odom(0.3, "10.7"),
-            odom(0.4, "11.2"),
+            odom(0.3, "11.4"),
             flaser(0.4, "11.2"),
-            odom(0.4, "3.5"),
+            odom(0.45, "11.3"),
+            odom(0.5, "0"),
+            flaser(0.5, "12.0"),
         ]
         .concat();
         let data = read("stamps", &text, &CarmenOptions::default()).unwrap();
@@ -951,12 +1084,10 @@ mod tests {
             [
                 (10.5, 'M'),
                 (10.5, 'S'),
-                (10.7, 'M'), // stamped 0: the time of the record after it
-                (10.7, 'M'), // 10.9, before 10.7: bounded by the record after it
-                (10.7, 'M'),
-                (11.2, 'M'),
+                (11.2, 'M'), // stamped 11.4, after the scan at 11.2
                 (11.2, 'S'),
-                (11.2, 'M'), // stamped 3.5 at the end: the time before it
+                (12.0, 'M'), // stamped 0: the time of the record after it
+                (12.0, 'S'),
             ]
         );
         assert_eq!(data.warnings.len(), 1, "{:?}", data.warnings);
@@ -966,7 +1097,7 @@ mod tests {
             "{warning}"
         );
         assert!(
-            warning.contains("2 odometry records stamped more than 1 s before"),
+            warning.contains("1 odometry records stamped more than 1 s before"),
             "{warning}"
         );
         assert!(

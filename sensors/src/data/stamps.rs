@@ -3,9 +3,10 @@
 //! log read either way gives the same events at the same times:
 //!
 //! - A motion record stamped more than [`STAMP_OUTLIER_S`] before the latest stamp read is out
-//!   of order (the Radish "corrected" logs follow each scan with an `ODOM` line of the
-//!   corrected pose stamped 0 or with a garbage value): its motion takes the time of the
-//!   record after it.
+//!   of order (stamped 0 or with a garbage value): its motion takes the time of the record
+//!   after it. (The CARMEN reader reads the Radish corrected logs' `ODOM` line of the
+//!   corrected pose after each scan, stamped 0, as a reset of the odometry frame before it
+//!   gets here.)
 //! - Motion between two scans never takes a time after the next scan's stamp, nor before the
 //!   time already written (odometry stamps jitter by up to a second in the Intel log).
 //! - A scan stamped before the time already written takes that time.
@@ -62,6 +63,12 @@ impl Times {
         time
     }
 
+    /// Whether a motion record stamped `stamp` would be out of order: more than
+    /// [`STAMP_OUTLIER_S`] before the latest stamp in order.
+    pub(crate) fn is_out_of_order(&self, stamp: f64) -> bool {
+        self.reached.is_some_and(|r| stamp < r - STAMP_OUTLIER_S)
+    }
+
     /// An `ODOM` record stamped `stamp` and its motion event (none for the first).
     pub(crate) fn odometry(
         &mut self,
@@ -69,7 +76,7 @@ impl Times {
         event: Option<Event>,
         out: &mut VecDeque<TimedEvent>,
     ) {
-        let out_of_order = self.reached.is_some_and(|r| stamp < r - STAMP_OUTLIER_S);
+        let out_of_order = self.is_out_of_order(stamp);
         if !out_of_order {
             self.reached = Some(self.reached.map_or(stamp, |r| r.max(stamp)));
         }

@@ -19,7 +19,6 @@ mod eval;
 mod extract;
 mod figures;
 mod g2o;
-mod grid;
 mod mcap_log;
 mod outputs;
 mod outset;

@@ -16,6 +16,8 @@
 //! - [`run()`]: a whole run from a config; [`eval`]: ATE, RPE, NEES / NIS and map error, and
 //!   [`RunMetrics`] (`metrics.json`).
 //! - [`postprocess`]: stages after the estimator (EM polygonal approximation).
+//! - [`grid`]: the log-odds occupancy grid built from the laser scans during a run (an
+//!   [`Observer`]), with its map_server images.
 //!
 //! ```no_run
 //! use slam_runtime::{Config, RunMetrics, run};
@@ -34,6 +36,7 @@ mod error;
 mod estimators;
 pub mod eval;
 pub mod frontend;
+pub mod grid;
 pub mod health;
 mod metrics;
 pub mod postprocess;

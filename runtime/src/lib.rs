@@ -17,7 +17,8 @@
 //!   [`RunMetrics`] (`metrics.json`).
 //! - [`postprocess`]: stages after the estimator (EM polygonal approximation).
 //! - [`grid`]: the log-odds occupancy grid built from the laser scans during a run (an
-//!   [`Observer`]), with its map_server images.
+//!   [`Observer`]), with its map_server images; [`g2o`]: the run as a pose graph in g2o's
+//!   text format.
 //!
 //! ```no_run
 //! use slam_runtime::{Config, RunMetrics, run};
@@ -36,6 +37,7 @@ mod error;
 mod estimators;
 pub mod eval;
 pub mod frontend;
+pub mod g2o;
 pub mod grid;
 pub mod health;
 mod metrics;

@@ -19,6 +19,8 @@
 //! - [`grid`]: the log-odds occupancy grid built from the laser scans during a run (an
 //!   [`Observer`]), with its map_server images; [`g2o`]: the run as a pose graph in g2o's
 //!   text format.
+//! - [`study`]: the consistency study over many seeded simulated runs (average pose NEES
+//!   against its 95% band, per wall representation).
 //!
 //! ```no_run
 //! use slam_runtime::{Config, RunMetrics, run};
@@ -45,6 +47,7 @@ pub mod postprocess;
 mod record;
 mod run;
 mod session;
+pub mod study;
 
 pub use config::{Config, OutputConfig};
 pub use error::{Result, RuntimeError};

@@ -20,7 +20,8 @@
 //!   [`Observer`]), with its map_server images; [`g2o`]: the run as a pose graph in g2o's
 //!   text format.
 //! - [`study`]: the consistency study over many seeded simulated runs (average pose NEES
-//!   against its 95% band, per wall representation).
+//!   against its 95% band, per wall representation); [`bench`]: what a run costs (time per
+//!   step, state size).
 //!
 //! ```no_run
 //! use slam_runtime::{Config, RunMetrics, run};
@@ -33,6 +34,7 @@
 
 #![warn(missing_docs)]
 
+pub mod bench;
 mod config;
 pub mod data;
 mod error;

@@ -35,9 +35,10 @@ use clap::{CommandFactory, Parser, Subcommand};
 pub use error::{CliError, Result};
 pub use outputs::map_json;
 pub use run::{
-    EXIT_DIVERGED, EXIT_INTERRUPTED, RunArgs, RunResults, RunStatus, compute_run, run_config,
-    run_config_until, with_overrides,
+    EXIT_DIVERGED, EXIT_INTERRUPTED, RunArgs, RunStatus, compute_run, run_config, run_config_until,
+    with_overrides,
 };
+pub use slam_runtime::RunResults;
 
 /// Links the example crate, whose `typetag` registrations the command offers by name.
 use slam_examples as _;

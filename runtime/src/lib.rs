@@ -14,7 +14,8 @@
 //! - [`Session`]: an estimator and a front-end stepping through events, with
 //!   [`Observer`]s; [`Recorder`] keeps the standard record.
 //! - [`run()`]: a whole run from a config; [`eval`]: ATE, RPE, NEES / NIS and map error, and
-//!   [`RunMetrics`] (`metrics.json`).
+//!   [`RunMetrics`] (`metrics.json`); [`compute_run`]: both, what `slam run` computes before
+//!   it writes its files.
 //! - [`postprocess`]: stages after the estimator (EM polygonal approximation).
 //! - [`grid`]: the log-odds occupancy grid built from the laser scans during a run (an
 //!   [`Observer`]), with its map_server images; [`g2o`]: the run as a pose graph in g2o's
@@ -55,7 +56,7 @@ pub use config::{Config, OutputConfig};
 pub use error::{Result, RuntimeError};
 pub use estimators::{EstimatorConfig, Start};
 pub use frontend::{Frontend, FrontendConfig, load_prior};
-pub use metrics::{LaserOdometryReportView, RunMetrics};
+pub use metrics::{LaserOdometryReportView, RunMetrics, RunResults, compute_run};
 pub use postprocess::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
 pub use record::{Recorder, UpdateTotals};
 pub use run::{InputReport, RunOutput, run, run_until};

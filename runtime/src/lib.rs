@@ -21,7 +21,7 @@
 //!   [`Observer`]), with its map_server images; [`g2o`]: the run as a pose graph in g2o's
 //!   text format.
 //! - [`study`]: the consistency study over many seeded simulated runs (average pose NEES
-//!   against its 95% band, per wall representation); [`bench`]: what a run costs (time per
+//!   against its 95% band, per wall representation); [`mod@bench`]: what a run costs (time per
 //!   step, state size).
 //!
 //! ```no_run

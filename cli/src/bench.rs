@@ -8,9 +8,7 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use serde::Serialize;
-use slam_core::{Estimator, Pose2};
-use slam_runtime::{Observer, run};
+use slam_runtime::bench::{self, BenchReport, ProcessMeter};
 
 use crate::error::Result;
 use crate::run::{RunArgs, config_of};
@@ -34,41 +32,6 @@ pub struct BenchArgs {
     pub json: bool,
 }
 
-/// What one run cost.
-#[derive(Clone, Debug, Serialize)]
-pub struct BenchRun {
-    /// Time steps.
-    pub steps: usize,
-    /// Seconds spent stepping (front-end and estimator; reading the data not included).
-    pub stepping_s: f64,
-    /// Milliseconds per step, stepping only.
-    pub per_step_ms: f64,
-    /// CPU seconds of the process during the run (all threads, data reading included), when
-    /// the system reports it.
-    pub cpu_s: Option<f64>,
-    /// State rows at the end: 3 pose rows and the map's M-space rows.
-    pub state_rows_end: usize,
-    /// Largest state during the run.
-    pub state_rows_max: usize,
-    /// Map features at the end.
-    pub features_end: usize,
-}
-
-/// The measurements of `slam bench`.
-#[derive(Clone, Debug, Serialize)]
-pub struct BenchReport {
-    /// The estimator's name.
-    pub estimator: String,
-    /// The data spec.
-    pub data: String,
-    /// Each run.
-    pub runs: Vec<BenchRun>,
-    /// Median of the runs' milliseconds per step.
-    pub median_per_step_ms: f64,
-    /// Peak resident memory of the process, MB (all runs), when the system reports it.
-    pub peak_resident_mb: Option<f64>,
-}
-
 /// Runs `slam bench` and returns what it prints.
 pub fn run_bench(args: &BenchArgs) -> Result<String> {
     let report = measure(args)?;
@@ -78,7 +41,8 @@ pub fn run_bench(args: &BenchArgs) -> Result<String> {
     Ok(table(&report))
 }
 
-/// Runs the configured estimator `args.runs` times and measures each run.
+/// Runs the configured estimator `args.runs` times and measures each run
+/// ([`slam_runtime::bench::measure`], with the process read from `/proc/self`).
 pub fn measure(args: &BenchArgs) -> Result<BenchReport> {
     let run_args = RunArgs {
         config: args.config.clone(),
@@ -91,34 +55,7 @@ pub fn measure(args: &BenchArgs) -> Result<BenchReport> {
         mcap: false,
     };
     let config = config_of(&run_args)?;
-    let mut runs = Vec::with_capacity(args.runs);
-    let mut estimator = String::new();
-    for _ in 0..args.runs.max(1) {
-        let cpu_before = process_cpu_seconds();
-        let mut observer = StateSize::default();
-        let output = run(&config, &mut observer)?;
-        let cpu_after = process_cpu_seconds();
-        estimator = output.estimator.name().to_string();
-        let steps = observer.steps;
-        runs.push(BenchRun {
-            steps,
-            stepping_s: output.wall_time_s,
-            per_step_ms: 1e3 * output.wall_time_s / steps.max(1) as f64,
-            cpu_s: cpu_before.zip(cpu_after).map(|(a, b)| b - a),
-            state_rows_end: state_rows(output.estimator.as_ref()),
-            state_rows_max: observer.max_rows,
-            features_end: output.estimator.map().len(),
-        });
-    }
-    let mut per_step: Vec<f64> = runs.iter().map(|r| r.per_step_ms).collect();
-    per_step.sort_by(f64::total_cmp);
-    Ok(BenchReport {
-        estimator,
-        data: config.data.spec.clone(),
-        median_per_step_ms: per_step[per_step.len() / 2],
-        runs,
-        peak_resident_mb: peak_resident_mb(),
-    })
+    Ok(bench::measure(&config, args.runs, &ProcSelf)?)
 }
 
 /// The report as a table.
@@ -153,34 +90,17 @@ fn table(report: &BenchReport) -> String {
     text
 }
 
-/// Counts steps and the largest state.
-#[derive(Default)]
-struct StateSize {
-    steps: usize,
-    max_rows: usize,
-}
+/// The process as Linux reports it in `/proc/self`.
+struct ProcSelf;
 
-impl Observer for StateSize {
-    fn step_end(
-        &mut self,
-        _time: f64,
-        estimator: &dyn Estimator<Pose2>,
-    ) -> slam_runtime::Result<()> {
-        self.steps += 1;
-        self.max_rows = self.max_rows.max(state_rows(estimator));
-        Ok(())
+impl ProcessMeter for ProcSelf {
+    fn cpu_seconds(&self) -> Option<f64> {
+        process_cpu_seconds()
     }
-}
 
-/// Pose rows plus the map's M-space rows (each feature's own rows and each shared block once).
-fn state_rows(estimator: &dyn Estimator<Pose2>) -> usize {
-    let map = estimator.map();
-    let own: usize = map.iter().map(|(_, feature)| feature.mspace_dim()).sum();
-    let shared: usize = map
-        .shared_blocks()
-        .map(|(_, block)| block.value.dim())
-        .sum();
-    3 + own + shared
+    fn peak_resident_mb(&self) -> Option<f64> {
+        peak_resident_mb()
+    }
 }
 
 /// CPU seconds (user and system) of this process so far, from `/proc/self/stat` (Linux).
@@ -206,37 +126,33 @@ fn peak_resident_mb() -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use slam_runtime::bench::BenchRun;
 
     #[test]
-    fn a_bench_of_the_circle_world_counts_its_steps_and_state() {
-        let world = concat!(env!("CARGO_MANIFEST_DIR"), "/../worlds/rb2d-circle.toml");
-        let dir = tempfile::tempdir().unwrap();
-        let config = dir.path().join("bench.toml");
-        // The first 300 events: about 100 steps (motion, observations, true pose).
-        std::fs::write(&config, "[data]\nmax_events = 300\n").unwrap();
-        let args = BenchArgs {
-            config: Some(config),
-            data: Some(format!("world:{world}")),
-            seed: Some(1),
-            runs: 2,
-            json: false,
+    fn the_table_names_the_estimator_the_data_and_the_time_per_step() {
+        let run = BenchRun {
+            steps: 100,
+            stepping_s: 0.05,
+            per_step_ms: 0.5,
+            cpu_s: None,
+            state_rows_end: 43,
+            state_rows_max: 43,
+            features_end: 20,
         };
-        let report = measure(&args).unwrap();
-        assert_eq!(report.runs.len(), 2);
-        for run in &report.runs {
-            // Point landmarks of 2 rows each; a tenth of the circle sees many of the 50.
-            assert!((90..=150).contains(&run.steps), "{} steps", run.steps);
-            assert_eq!(run.state_rows_end, 3 + 2 * run.features_end);
-            assert!(
-                (10..=50).contains(&run.features_end),
-                "{}",
-                run.features_end
-            );
-            assert!(run.state_rows_max >= run.state_rows_end);
-            assert!(run.per_step_ms > 0.0);
-        }
+        let report = BenchReport {
+            estimator: "ekf".into(),
+            data: "world:circle.toml".into(),
+            runs: vec![run.clone(), run],
+            median_per_step_ms: 0.5,
+            peak_resident_mb: Some(12.5),
+        };
         let text = table(&report);
-        assert!(text.contains("ekf on world:"), "{text}");
-        assert!(text.contains("ms per step"), "{text}");
+        assert!(
+            text.contains("ekf on world:circle.toml, 2 run(s)"),
+            "{text}"
+        );
+        assert!(text.contains("median 0.5000 ms per step"), "{text}");
+        assert!(text.contains("peak resident memory 12.5 MB"), "{text}");
+        assert_eq!(text.lines().count(), 5, "{text}");
     }
 }

@@ -1,21 +1,15 @@
 //! `slam consistency`: the statistical consistency of the estimator over many seeded runs of
 //! a simulated world, for the M-space walls and for the naive endpoint walls (the M-space
-//! paper's Fig. 1 claim, measured).
-//!
-//! For `N` runs the average robot-pose NEES at a step is `1/N` times a chi-square variable
-//! with `3N` degrees of freedom when the filter is consistent, so its two-sided 95% band is
-//! `[chi2(0.025, 3N) / N, chi2(0.975, 3N) / N]` (Bar-Shalom, Li & Kirubarajan, ch. 5.4). The
-//! report gives the fraction of steps whose average lies in the band.
+//! paper's Fig. 1 claim, measured). The study itself (the runs, the average NEES and its 95%
+//! band) is [`slam_runtime::study`]; this command takes the arguments, shows the progress,
+//! prints the summary and writes `consistency.json`, `consistency.csv` and `consistency.png`.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-
-use rayon::prelude::*;
-use serde::Serialize;
-use slam_core::chi2_quantile;
+use std::sync::{Mutex, MutexGuard, PoisonError};
 
 use slam_runtime::Config;
-use slam_runtime::eval::{map_error_against_truth, pose_nees};
+use slam_runtime::study::{ConsistencyReport, StudyProgress, consistency_study};
 
 use crate::error::{CliError, Result};
 use crate::outputs::{create_dir, write_json, write_text};
@@ -47,184 +41,64 @@ pub struct ConsistencyArgs {
     pub quiet: bool,
 }
 
-/// The outcome of one run.
-struct RunOutcome {
-    nees: Vec<(f64, f64)>,
-    ate_rmse_m: Option<f64>,
-    map_error_m: f64,
+/// The progress bar of `slam consistency`: one bar per representation, hidden with
+/// `--quiet`.
+struct Bar {
+    quiet: bool,
+    bar: Mutex<indicatif::ProgressBar>,
 }
 
-/// The study of one representation.
-#[derive(Debug, Serialize)]
-pub struct Study {
-    /// Runs that finished.
-    pub runs_ok: usize,
-    /// Runs that stopped with an error, with the error.
-    pub failures: Vec<(u64, String)>,
-    /// Steps with a NEES in every finished run.
-    pub steps: usize,
-    /// Fraction of those steps whose average NEES lies in the 95% band.
-    pub fraction_within_band: f64,
-    /// Fraction of steps above the band (overconfident) and below it (pessimistic).
-    pub fraction_above_band: f64,
-    /// Fraction of steps below the band.
-    pub fraction_below_band: f64,
-    /// Mean over steps of the average NEES (3 when consistent).
-    pub mean_nees: f64,
-    /// Median over steps of the average NEES.
-    pub median_nees: f64,
-    /// Mean ATE over the runs (aligned, m).
-    pub ate_rmse_mean_m: f64,
-    /// Mean map error over the runs (m).
-    pub map_error_mean_m: f64,
-    /// Per run: `(seed, mean pose NEES, ATE m)`.
-    pub per_run: Vec<(u64, f64, Option<f64>)>,
-    /// `(time, average NEES)` per step.
-    #[serde(skip)]
-    pub series: Vec<(f64, f64)>,
-}
-
-/// The whole report.
-#[derive(Debug, Serialize)]
-pub struct Report {
-    /// Runs per representation.
-    pub runs: usize,
-    /// Seeds `first..first + runs`.
-    pub first_seed: u64,
-    /// The 95% band of the average NEES over `runs` runs.
-    pub band_95: (f64, f64),
-    /// Per representation.
-    pub representations: BTreeMap<String, Study>,
-    /// The command's configuration.
-    pub config: Config,
-}
-
-/// One seeded run of `config` (whose data must be simulated).
-fn one_run(config: &Config, seed: u64) -> Result<RunOutcome> {
-    if !config.data.data_spec()?.is_simulated() {
-        return Err(CliError::Usage(format!(
-            "slam consistency needs simulated data (sim or world:FILE), not `{}`",
-            config.data.spec
-        )));
-    }
-    let mut config = config.clone();
-    config.data.seed = seed;
-    let output = slam_runtime::run(&config, &mut ())?;
-    let trajectory = output.record.trajectory_errors()?;
-    let map_error_m = output.truth_map.as_ref().map_or(0.0, |t| {
-        map_error_against_truth(
-            output.estimator.as_ref(),
-            &t.shapes(),
-            trajectory.as_ref().map(|t| &t.alignment),
-        )
-        .rms_m
-    });
-    Ok(RunOutcome {
-        nees: pose_nees(&output.record.estimates, &output.record.true_poses()),
-        ate_rmse_m: trajectory.map(|t| t.ate_rmse_m),
-        map_error_m,
-    })
-}
-
-/// Runs the study of one representation over `seeds`.
-fn study(config: &Config, seeds: &[u64], band: (f64, f64), quiet: bool) -> Study {
-    let bar = if quiet {
-        indicatif::ProgressBar::hidden()
-    } else {
-        indicatif::ProgressBar::new(seeds.len() as u64)
-    };
-    let outcomes: Vec<(u64, Result<RunOutcome>)> = seeds
-        .par_iter()
-        .map(|&seed| {
-            let outcome = one_run(config, seed);
-            bar.inc(1);
-            (seed, outcome)
-        })
-        .collect();
-    bar.finish_and_clear();
-    let mut failures = Vec::new();
-    let mut ok = Vec::new();
-    let mut per_run = Vec::new();
-    for (seed, outcome) in outcomes {
-        match outcome {
-            Ok(o) => {
-                let mean = o.nees.iter().map(|(_, n)| n).sum::<f64>() / o.nees.len().max(1) as f64;
-                per_run.push((seed, mean, o.ate_rmse_m));
-                ok.push(o);
-            }
-            Err(e) => failures.push((seed, e.to_string())),
+impl Bar {
+    fn new(quiet: bool) -> Self {
+        Bar {
+            quiet,
+            bar: Mutex::new(indicatif::ProgressBar::hidden()),
         }
     }
-    let mut by_time: BTreeMap<u64, (f64, Vec<f64>)> = BTreeMap::new();
-    for outcome in &ok {
-        for &(time, nees) in &outcome.nees {
-            by_time
-                .entry(time.to_bits())
-                .or_insert((time, Vec::new()))
-                .1
-                .push(nees);
-        }
-    }
-    let mut series: Vec<(f64, f64)> = by_time
-        .values()
-        .filter(|(_, values)| values.len() == ok.len() && !ok.is_empty())
-        .map(|(time, values)| (*time, values.iter().sum::<f64>() / values.len() as f64))
-        .collect();
-    series.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let steps = series.len().max(1) as f64;
-    let count =
-        |f: &dyn Fn(f64) -> bool| series.iter().filter(|(_, n)| f(*n)).count() as f64 / steps;
-    let mut sorted: Vec<f64> = series.iter().map(|(_, n)| *n).collect();
-    sorted.sort_by(f64::total_cmp);
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    let ates: Vec<f64> = ok.iter().filter_map(|o| o.ate_rmse_m).collect();
-    let maps: Vec<f64> = ok.iter().map(|o| o.map_error_m).collect();
-    Study {
-        runs_ok: ok.len(),
-        failures,
-        steps: series.len(),
-        fraction_within_band: count(&|n| n >= band.0 && n <= band.1),
-        fraction_above_band: count(&|n| n > band.1),
-        fraction_below_band: count(&|n| n < band.0),
-        mean_nees: mean(&sorted),
-        median_nees: sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN),
-        ate_rmse_mean_m: mean(&ates),
-        map_error_mean_m: mean(&maps),
-        per_run,
-        series,
+
+    fn bar(&self) -> MutexGuard<'_, indicatif::ProgressBar> {
+        // A bar is only drawn: one left by a panicking thread is still fine to use.
+        self.bar.lock().unwrap_or_else(PoisonError::into_inner)
     }
 }
 
-/// Runs the study for every representation of `walls` and writes the report.
+impl StudyProgress for Bar {
+    fn start(&self, _name: &str, runs: usize) {
+        *self.bar() = if self.quiet {
+            indicatif::ProgressBar::hidden()
+        } else {
+            indicatif::ProgressBar::new(runs as u64)
+        };
+    }
+
+    fn run_done(&self) {
+        self.bar().inc(1);
+    }
+
+    fn finish(&self) {
+        self.bar().finish_and_clear();
+    }
+}
+
+/// Runs the study for every representation of `walls` ([`consistency_study`]), with a
+/// progress bar unless `quiet`.
 pub fn run_study(
     config: &Config,
     walls: &[String],
     runs: usize,
     first_seed: u64,
     quiet: bool,
-) -> Result<Report> {
+) -> Result<ConsistencyReport> {
     if runs == 0 {
         return Err(CliError::Usage("--runs must be at least 1".into()));
     }
-    let dof = 3 * runs;
-    let band = (
-        chi2_quantile(0.025, dof)? / runs as f64,
-        chi2_quantile(0.975, dof)? / runs as f64,
-    );
-    let seeds: Vec<u64> = (first_seed..first_seed + runs as u64).collect();
-    let mut representations = BTreeMap::new();
-    for name in walls {
-        let mut config = config.clone();
-        config.set_frontend_key("wall_representation", toml::Value::String(name.clone()))?;
-        representations.insert(name.clone(), study(&config, &seeds, band, quiet));
-    }
-    Ok(Report {
+    Ok(consistency_study(
+        config,
+        walls,
         runs,
         first_seed,
-        band_95: band,
-        representations,
-        config: config.clone(),
-    })
+        &Bar::new(quiet),
+    )?)
 }
 
 /// Runs `slam consistency`.
@@ -282,7 +156,7 @@ pub fn run(args: &ConsistencyArgs) -> Result<()> {
 }
 
 /// `time,<representation>...` rows of the average NEES.
-fn csv(report: &Report) -> String {
+fn csv(report: &ConsistencyReport) -> String {
     let names: Vec<&String> = report.representations.keys().collect();
     let mut rows: BTreeMap<u64, (f64, Vec<String>)> = BTreeMap::new();
     for (k, study) in report.representations.values().enumerate() {
@@ -309,7 +183,7 @@ fn csv(report: &Report) -> String {
     text
 }
 
-fn chart(report: &Report) -> LineChart {
+fn chart(report: &ConsistencyReport) -> LineChart {
     let colours = [
         palette::WALL,
         palette::PATH,

@@ -18,8 +18,6 @@ pub mod error;
 mod eval;
 mod extract;
 mod figures;
-mod g2o;
-mod grid;
 mod mcap_log;
 mod outputs;
 mod outset;
@@ -37,9 +35,10 @@ use clap::{CommandFactory, Parser, Subcommand};
 pub use error::{CliError, Result};
 pub use outputs::map_json;
 pub use run::{
-    EXIT_DIVERGED, EXIT_INTERRUPTED, RunArgs, RunResults, RunStatus, compute_run, run_config,
-    run_config_until, with_overrides,
+    EXIT_DIVERGED, EXIT_INTERRUPTED, RunArgs, RunStatus, compute_run, run_config, run_config_until,
+    with_overrides,
 };
+pub use slam_runtime::RunResults;
 
 /// Links the example crate, whose `typetag` registrations the command offers by name.
 use slam_examples as _;

@@ -24,11 +24,9 @@ use std::path::{Path, PathBuf};
 use serde_json::{Value, json};
 use slam_core::nalgebra::{Matrix2, Vector2, Vector3};
 use slam_core::{Estimator, Pose2, Pose3, Shape, UpdateReport};
-use slam_runtime::eval::confirmed;
+use slam_runtime::eval::{anchor_covariance, confirmed};
 use slam_runtime::{Observer, RuntimeError};
 use slam_sensors::{Event, LaserScan, TimedEvent};
-
-use crate::outputs::anchor_covariance;
 
 /// The scale of a 2-D covariance ellipse holding 95 % of the probability: `sqrt(chi2_2(0.95))`.
 const ELLIPSE_SCALE: f64 = 2.447_746_830_680_816;

@@ -5,8 +5,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde::Serialize;
-use slam_core::nalgebra::{DMatrix, DVector, Matrix2};
-use slam_core::{CoordBlock, Estimator, Feature, FeatureId, FeatureMap, Pose2, RowOwner};
+use slam_core::nalgebra::DMatrix;
+use slam_core::{CoordBlock, Estimator, Feature, FeatureMap, Pose2, RowOwner};
 use slam_runtime::RunOutput;
 use slam_runtime::eval::{confirmed, pose_nees, stamped};
 use slam_sensors::data::{write_atomically, write_atomically_with, write_tum};
@@ -204,34 +204,4 @@ pub fn write_estimates_csv(dir: &Path, output: &RunOutput) -> Result<()> {
         Ok(())
     })?;
     Ok(())
-}
-
-/// The covariance of a feature's anchor position ([`slam_core::Shape::anchor`]: a point's or
-/// pole's position) in the world frame: the covariance of its own M-space rows carried through
-/// the derivative of the anchor (central differences). `None` where the estimator keeps no
-/// covariance, the feature has no shape, or some of its rows are shared with other features.
-pub fn anchor_covariance(estimator: &dyn Estimator<Pose2>, id: FeatureId) -> Option<Matrix2<f64>> {
-    let feature = estimator.map().get(id).ok()?;
-    let covariance = estimator.row_covariance(RowOwner::Feature(id))?;
-    let dim = feature.mspace_dim();
-    if dim == 0 || covariance.shape() != (dim, dim) {
-        return None;
-    }
-    let step = 1e-6;
-    let anchor_after = |k: usize, sign: f64| {
-        let mut moved = dyn_clone::clone_box(feature);
-        let mut dx = DVector::zeros(dim);
-        dx[k] = sign * step;
-        moved.apply_perturbation(&dx).ok()?;
-        moved.shape().map(|s| s.anchor())
-    };
-    let mut jacobian = DMatrix::zeros(2, dim);
-    for k in 0..dim {
-        let derivative = (anchor_after(k, 1.0)? - anchor_after(k, -1.0)?) / (2.0 * step);
-        jacobian[(0, k)] = derivative.x;
-        jacobian[(1, k)] = derivative.y;
-    }
-    let c = &jacobian * covariance * jacobian.transpose();
-    let c = Matrix2::new(c[(0, 0)], c[(0, 1)], c[(1, 0)], c[(1, 1)]);
-    c.iter().all(|v| v.is_finite()).then_some(c)
 }

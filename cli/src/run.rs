@@ -5,13 +5,13 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
 use slam_runtime::eval::stamped;
-use slam_runtime::{Config, Observer, PostProcessOutput, RunMetrics, RunOutput};
+use slam_runtime::g2o::{G2oObserver, g2o_text};
+use slam_runtime::grid::GridObserver;
+use slam_runtime::{Config, Observer, PostProcessOutput, RunMetrics, RunOutput, RunResults};
 use slam_sensors::data::{write_atomically, write_tum};
 
 use crate::error::{CliError, Result};
 use crate::figures::{run_figure, stage_figure};
-use crate::g2o::{G2oObserver, g2o_text};
-use crate::grid::GridObserver;
 use crate::mcap_log::McapLog;
 use crate::outputs::{
     create_dir, map_json, plain_map_json, write_estimates_csv, write_json, write_text,
@@ -88,24 +88,15 @@ pub fn with_overrides(mut config: Config, data: Option<&str>, seed: Option<u64>)
     config
 }
 
-/// A run in memory: what `slam run` computes before it writes any file.
-pub struct RunResults {
-    /// The run (estimates, truth, the estimator with its map, stages' outputs).
-    pub output: RunOutput,
-    /// Its metrics (`metrics.json`).
-    pub metrics: RunMetrics,
-}
-
-/// The computation of `slam run` without its files: runs `config`, with `observer` watching,
-/// until the end of the data or until `stop` is set, and computes the run's metrics.
+/// The computation of `slam run` without its files ([`slam_runtime::compute_run`], with the
+/// command's error type): runs `config`, with `observer` watching, until the end of the data
+/// or until `stop` is set, and computes the run's metrics.
 pub fn compute_run(
     config: &Config,
     observer: &mut dyn Observer,
     stop: &AtomicBool,
 ) -> Result<RunResults> {
-    let output = slam_runtime::run_until(config, observer, stop)?;
-    let metrics = RunMetrics::compute(&output, config)?;
-    Ok(RunResults { output, metrics })
+    Ok(slam_runtime::compute_run(config, observer, stop)?)
 }
 
 /// How a run ended: the exit code of `slam run`.

@@ -14,9 +14,16 @@
 //! - [`Session`]: an estimator and a front-end stepping through events, with
 //!   [`Observer`]s; [`Recorder`] keeps the standard record.
 //! - [`run()`]: a whole run from a config; [`eval`]: ATE, RPE, NEES / NIS and map error, and
-//!   [`RunMetrics`] (`metrics.json`).
+//!   [`RunMetrics`] (`metrics.json`); [`compute_run`]: both, what `slam run` computes before
+//!   it writes its files.
 //! - [`postprocess`]: stages after the estimator (EM polygonal approximation, relocalization
 //!   of the scans against the final map).
+//! - [`grid`]: the log-odds occupancy grid built from the laser scans during a run (an
+//!   [`Observer`]), with its map_server images; [`g2o`]: the run as a pose graph in g2o's
+//!   text format.
+//! - [`study`]: the consistency study over many seeded simulated runs (average pose NEES
+//!   against its 95% band, per wall representation); [`mod@bench`]: what a run costs (time per
+//!   step, state size).
 //!
 //! ```no_run
 //! use slam_runtime::{Config, RunMetrics, run};
@@ -29,24 +36,28 @@
 
 #![warn(missing_docs)]
 
+pub mod bench;
 mod config;
 pub mod data;
 mod error;
 mod estimators;
 pub mod eval;
 pub mod frontend;
+pub mod g2o;
+pub mod grid;
 pub mod health;
 mod metrics;
 pub mod postprocess;
 mod record;
 mod run;
 mod session;
+pub mod study;
 
 pub use config::{Config, OutputConfig};
 pub use error::{Result, RuntimeError};
 pub use estimators::{EstimatorConfig, Start};
 pub use frontend::{Frontend, FrontendConfig, load_prior};
-pub use metrics::{LaserOdometryReportView, RunMetrics};
+pub use metrics::{LaserOdometryReportView, RunMetrics, RunResults, compute_run};
 pub use postprocess::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
 pub use record::{Recorder, UpdateTotals};
 pub use run::{InputReport, RunOutput, run, run_until};

@@ -2,6 +2,7 @@
 //! data's truth, map error against a true map or known landmarks, NEES and NIS, counts.
 
 use std::collections::BTreeMap;
+use std::sync::atomic::AtomicBool;
 
 use serde::Serialize;
 use slam_core::{Pose2, Shape, Skips};
@@ -20,6 +21,7 @@ use crate::health::Divergence;
 use crate::record::UpdateTotals;
 use crate::run::InputReport;
 use crate::run::RunOutput;
+use crate::session::Observer;
 
 /// The Mahalanobis distance within which two poles or points count as one landmark mapped
 /// twice (`close_landmarks`).
@@ -253,6 +255,27 @@ impl RunMetrics {
         };
         Ok(error.filter(|m| m.count > 0))
     }
+}
+
+/// A run in memory with its metrics: what `slam run` computes before it writes any file.
+pub struct RunResults {
+    /// The run (estimates, truth, the estimator with its map, stages' outputs).
+    pub output: RunOutput,
+    /// Its metrics (`metrics.json`).
+    pub metrics: RunMetrics,
+}
+
+/// The computation of `slam run` without its files: runs `config`, with `observer` watching,
+/// until the end of the data or until `stop` is set ([`crate::run_until`]), and computes the
+/// run's [`RunMetrics`].
+pub fn compute_run(
+    config: &Config,
+    observer: &mut dyn Observer,
+    stop: &AtomicBool,
+) -> Result<RunResults> {
+    let output = crate::run::run_until(config, observer, stop)?;
+    let metrics = RunMetrics::compute(&output, config)?;
+    Ok(RunResults { output, metrics })
 }
 
 /// NEES and NIS of a run, with the reasons of those that are missing.

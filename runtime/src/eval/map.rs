@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 
 use serde::Serialize;
-use slam_core::nalgebra::{DMatrix, Vector2, Vector3};
+use slam_core::nalgebra::{DMatrix, DVector, Matrix2, Vector2, Vector3};
 use slam_core::{Estimator, Feature, FeatureId, FeatureMap, Pose2, RowOwner, Shape};
 use slam_sensors::KnownLandmark;
 
@@ -214,4 +214,34 @@ pub fn coordinate_covariance(
         }
     }
     Some(c)
+}
+
+/// The covariance of a feature's anchor position ([`slam_core::Shape::anchor`]: a point's or
+/// pole's position) in the world frame: the covariance of its own M-space rows carried through
+/// the derivative of the anchor (central differences). `None` where the estimator keeps no
+/// covariance, the feature has no shape, or some of its rows are shared with other features.
+pub fn anchor_covariance(estimator: &dyn Estimator<Pose2>, id: FeatureId) -> Option<Matrix2<f64>> {
+    let feature = estimator.map().get(id).ok()?;
+    let covariance = estimator.row_covariance(RowOwner::Feature(id))?;
+    let dim = feature.mspace_dim();
+    if dim == 0 || covariance.shape() != (dim, dim) {
+        return None;
+    }
+    let step = 1e-6;
+    let anchor_after = |k: usize, sign: f64| {
+        let mut moved = dyn_clone::clone_box(feature);
+        let mut dx = DVector::zeros(dim);
+        dx[k] = sign * step;
+        moved.apply_perturbation(&dx).ok()?;
+        moved.shape().map(|s| s.anchor())
+    };
+    let mut jacobian = DMatrix::zeros(2, dim);
+    for k in 0..dim {
+        let derivative = (anchor_after(k, 1.0)? - anchor_after(k, -1.0)?) / (2.0 * step);
+        jacobian[(0, k)] = derivative.x;
+        jacobian[(1, k)] = derivative.y;
+    }
+    let c = &jacobian * covariance * jacobian.transpose();
+    let c = Matrix2::new(c[(0, 0)], c[(0, 1)], c[(1, 0)], c[(1, 1)]);
+    c.iter().all(|v| v.is_finite()).then_some(c)
 }

@@ -26,8 +26,8 @@ pub use consistency::{
     singular_steps,
 };
 pub use map::{
-    MapError, confirmed, coordinate_covariance, feature_counts, map_error_against_landmarks,
-    map_error_against_truth, shared_dims,
+    MapError, anchor_covariance, confirmed, coordinate_covariance, feature_counts,
+    map_error_against_landmarks, map_error_against_truth, shared_dims,
 };
 pub(crate) use map_quality::SegmentGrid;
 pub use map_quality::{

@@ -1,6 +1,8 @@
 //! The occupancy grid of `slam run --grid` (`[output] grid = true`): every laser scan cast
-//! into a log-odds grid from the pose estimated at the end of its time step, written as
-//! `map.pgm` + `map.yaml` in the format of ROS `map_server` / `map_saver`.
+//! into a log-odds grid from the pose estimated at the end of its time step
+//! ([`GridObserver`] during a run), and its images in the format of ROS `map_server` /
+//! `map_saver` ([`OccupancyGrid::pgm`], [`OccupancyGrid::yaml`]; the command writes them as
+//! `map.pgm` + `map.yaml`).
 //!
 //! The pose is the estimate of `trajectory.tum` (for a particle filter, the weighted mean).
 //! Each beam lowers the log-odds of the cells it crosses (free) and raises the log-odds of the
@@ -14,8 +16,10 @@ use std::fmt::Write as _;
 
 use slam_core::nalgebra::{Vector2, Vector3};
 use slam_core::{Estimator, Pose2, Pose3, UpdateReport};
-use slam_runtime::{Observer, RuntimeError};
 use slam_sensors::{Event, LaserScan, TimedEvent};
+
+use crate::error::{Result, RuntimeError};
+use crate::session::Observer;
 
 /// Log-odds added to the cell of a return: `ln(0.7 / 0.3)`.
 pub const LOG_ODDS_HIT: f32 = 0.847_297_9;
@@ -83,7 +87,6 @@ impl OccupancyGrid {
     }
 
     /// Width and height in cells.
-    #[cfg(test)]
     pub fn size(&self) -> (usize, usize) {
         (self.width, self.height)
     }
@@ -97,14 +100,12 @@ impl OccupancyGrid {
     }
 
     /// The log-odds of the cell holding world point `p` (0 outside the grid).
-    #[cfg(test)]
     pub fn log_odds_at(&self, p: &Vector2<f64>) -> f32 {
         let (ix, iy) = self.cell_of(p);
         self.index(ix, iy).map_or(0.0, |k| self.log_odds[k])
     }
 
     /// The state of the cell holding world point `p`.
-    #[cfg(test)]
     pub fn state_at(&self, p: &Vector2<f64>) -> CellState {
         state_of(self.log_odds_at(p))
     }
@@ -116,7 +117,7 @@ impl OccupancyGrid {
     }
 
     /// Grows the grid to hold the cells `lo ..= hi`, with a margin so that growth is rare.
-    fn ensure(&mut self, lo: (i64, i64), hi: (i64, i64)) -> Result<(), RuntimeError> {
+    fn ensure(&mut self, lo: (i64, i64), hi: (i64, i64)) -> Result<()> {
         let inside = self.width > 0
             && lo.0 >= self.min_ix
             && lo.1 >= self.min_iy
@@ -176,7 +177,7 @@ impl OccupancyGrid {
         world_from_robot: &Pose2,
         robot_from_sensor: &Pose3,
         scan: &LaserScan,
-    ) -> Result<(), RuntimeError> {
+    ) -> Result<()> {
         let rotation = robot_from_sensor.rotation();
         let in_world = |p: Vector2<f64>| {
             let in_robot = robot_from_sensor.translation + rotation * Vector3::new(p.x, p.y, 0.0);
@@ -353,7 +354,7 @@ impl Observer for GridObserver {
         event: &TimedEvent,
         _: Option<&UpdateReport>,
         _: &dyn Estimator<Pose2>,
-    ) -> slam_runtime::Result<()> {
+    ) -> Result<()> {
         if let Event::Scan {
             scan,
             robot_from_sensor,
@@ -364,7 +365,7 @@ impl Observer for GridObserver {
         Ok(())
     }
 
-    fn step_end(&mut self, _: f64, estimator: &dyn Estimator<Pose2>) -> slam_runtime::Result<()> {
+    fn step_end(&mut self, _: f64, estimator: &dyn Estimator<Pose2>) -> Result<()> {
         let pose = estimator.pose();
         for (scan, robot_from_sensor) in self.pending.drain(..) {
             if pose.is_finite() {

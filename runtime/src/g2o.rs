@@ -1,5 +1,7 @@
 //! The pose graph of `slam run --g2o` (`[output] g2o = true`): `graph.g2o` in the text format
-//! of g2o (read by g2o, GTSAM's `readG2o`, and most pose-graph tools).
+//! of g2o (read by g2o, GTSAM's `readG2o`, and most pose-graph tools). [`G2oObserver`]
+//! collects during a run what the graph needs beyond the trajectory; [`g2o_text`] makes the
+//! text of the finished run (the command writes it as `graph.g2o`).
 //!
 //! - `VERTEX_SE2 k x y theta`: the pose estimated at the end of time step `k` (the poses of
 //!   `trajectory.tum`, in order, ids `0 .. N-1`).
@@ -28,11 +30,12 @@ use std::fmt::Write as _;
 
 use slam_core::nalgebra::{Matrix2, Matrix3};
 use slam_core::{Estimator, Pose2, Shape, UpdateReport};
-use slam_runtime::eval::{Record, confirmed};
-use slam_runtime::{Observer, RunOutput, RuntimeError};
 use slam_sensors::{Event, TimedEvent};
 
-use crate::outputs::anchor_covariance;
+use crate::error::{Result, RuntimeError};
+use crate::eval::{Record, anchor_covariance, confirmed};
+use crate::run::RunOutput;
+use crate::session::Observer;
 
 /// Standard deviation added to each axis of an odometry edge's covariance, m (and rad).
 const EDGE_FLOOR_SIGMA: f64 = 1e-3;
@@ -56,7 +59,7 @@ impl Observer for G2oObserver {
         event: &TimedEvent,
         _: Option<&UpdateReport>,
         _: &dyn Estimator<Pose2>,
-    ) -> slam_runtime::Result<()> {
+    ) -> Result<()> {
         if let Event::Motion(motion) = &event.event {
             let prediction = motion
                 .predict(&self.relative)
@@ -75,7 +78,7 @@ impl Observer for G2oObserver {
         Ok(())
     }
 
-    fn step_end(&mut self, _: f64, estimator: &dyn Estimator<Pose2>) -> slam_runtime::Result<()> {
+    fn step_end(&mut self, _: f64, estimator: &dyn Estimator<Pose2>) -> Result<()> {
         let step = self.step_odometry.len();
         self.step_odometry.push(self.covariance);
         self.covariance = Matrix3::zeros();
@@ -261,9 +264,9 @@ mod tests {
     fn first_seen(observer: &G2oObserver, id: FeatureId) -> Option<usize> {
         observer.first_seen.get(id.0).copied().flatten()
     }
+    use crate::{Config, Start};
     use slam_core::MotionModel;
     use slam_core::nalgebra::DMatrix;
-    use slam_runtime::{Config, Start};
 
     /// A motion increment with fixed noise (a straight step of 1 m).
     #[derive(Debug)]
@@ -305,7 +308,7 @@ mod tests {
         let config = Config::from_toml("[estimator]\ntype = \"dead-reckoning\"\n", "t").unwrap();
         let mut estimator = config.estimator.build(&start).unwrap();
         let mut observer = G2oObserver::default();
-        let mut record = slam_runtime::Recorder::default();
+        let mut record = crate::Recorder::default();
         for k in 0..3 {
             let event = TimedEvent {
                 time: k as f64,

@@ -15,7 +15,11 @@ sensors/src/data/carmen.rs):
 - The laser line's robot pose -> `/reference_pose` (`geometry_msgs/msg/PoseStamped`, frame
   `map`), right after its scan with the same stamp.
 - `ODOM` lines -> `/odom` (`nav_msgs/msg/Odometry`, `odom` -> `base_link`, the line's `tv`, `rv`
-  as the twist).
+  as the twist), except an `ODOM` line right after a laser line that repeats its robot pose and
+  is stamped more than 1 s before the latest stamp (the Radish corrected logs re-anchor their
+  odometry at the corrected pose so after each scan): the CARMEN reader reads it as a reset of
+  the odometry frame, not as motion, and a bag's `/odom` carries no such message. Those lines
+  are counted on stderr.
 - `/tf_static` (`tf2_msgs/msg/TFMessage`), first: `base_link` -> `front_laser` is the identity
   (the CARMEN reader's default front-laser mount); `base_link` -> `robot_laser` is the mount of
   the `ROBOTLASER1` lines (the laser pose relative to the robot pose; one for the whole log).
@@ -236,7 +240,8 @@ def convert(log, out, max_lines=0, compression="zstd"):
         if max(abs(a - b) for a, b in zip(first, mount)) > 1e-6:
             raise LogError(f"{log}: the {frame} mount changes from {first} to {mount}: a bag's "
                            "/tf_static holds one")
-    counts = {"/scan": 0, "/odom": 0, "/reference_pose": 0, "/tf_static": 0, "RLASER (left out)": 0}
+    counts = {"/scan": 0, "/odom": 0, "/reference_pose": 0, "/tf_static": 0, "RLASER (left out)": 0,
+              "ODOM odometry resets (left out)": 0}
     # Written beside the output and renamed when complete: a failure leaves no partial bag.
     partial = f"{out}.partial"
     try:
@@ -267,11 +272,23 @@ def write(log, out, max_lines, largest, mounts, counts, compression):
         writer.write_message("/tf_static", tf_schema, {"transforms": transforms}, log_time=0)
         counts["/tf_static"] += 1
         log_time = 0
+        after_laser = None  # the robot pose of a laser line just read
+        reached = None  # the latest stamp in order
         for kind, record in records(log, max_lines):
             if kind == "rlaser":
                 counts["RLASER (left out)"] += 1
                 continue
             t = record["stamp"]
+            scan_pose, after_laser = after_laser, None
+            if kind == "laser":
+                after_laser = record["pose"]
+            elif scan_pose is not None and reached is not None and t < reached - 1.0 and all(
+                    abs(a - b) <= 1e-9 * (1.0 + max(abs(a), abs(b)))
+                    for a, b in zip(scan_pose, record["pose"])):
+                counts["ODOM odometry resets (left out)"] += 1
+                continue
+            if reached is None or t >= reached - 1.0:
+                reached = t if reached is None else max(reached, t)
             log_time = max(log_time, round(t * 1e9))
             if kind == "laser":
                 ranges = record["ranges"]

@@ -151,11 +151,9 @@ struct Stamped {
 /// Reads a CARMEN log, plain or gzip-compressed (detected by its magic bytes).
 ///
 /// Each laser line gives an [`Event::Scan`] followed by an [`Event::GroundTruth`] of kind
-/// [`TruthKind::Reference`] with the line's robot pose. The `ODOM` lines between two laser lines
-/// give one [`Event::Motion`] before the later one: the [`PoseIncrement`] from the odometry pose
-/// of the previous increment to the last `ODOM` pose (its noise, [`OdometryNoise`], is a model
-/// of the motion between scans: compounded over every record of a 40 Hz odometry instead, its
-/// covariance would shrink with the record rate; MRPT's CARMEN import does the same). Event times
+/// [`TruthKind::Reference`] with the line's robot pose; each `ODOM` line after the first gives
+/// an [`Event::Motion`] with the [`PoseIncrement`] from the previous `ODOM` pose (but for the
+/// re-anchoring lines of the [module](self) documentation). Event times
 /// are the logger timestamps, repaired or replaced by line numbers as the [module](self)
 /// documentation says. Known lines with the wrong field count or with non-numeric or non-finite
 /// numbers are errors naming `file:line`. This is [`stream_carmen`] collected.
@@ -231,7 +229,6 @@ pub fn stream_carmen(path: &Path, options: &CarmenOptions) -> Result<EventStream
         skipped: skipped.clone(),
         file_max: None,
         previous_odometry: None,
-        pending_odometry: None,
         last_laser_pose: None,
         resets: 0,
         records: 0,
@@ -249,10 +246,7 @@ struct CarmenReader {
     skipped: SkipCounter,
     /// The largest reading of the file, once a line has needed it.
     file_max: Option<f64>,
-    /// The odometry pose of the last motion written (or of the first `ODOM` line).
     previous_odometry: Option<Pose2>,
-    /// The latest `ODOM` pose since, with its stamp and line: motion not written yet.
-    pending_odometry: Option<(Pose2, f64, usize)>,
     /// The robot pose of the last laser line, until the next `ODOM` line.
     last_laser_pose: Option<Pose2>,
     /// `ODOM` lines that re-anchored the odometry at a scan's reference pose.
@@ -270,14 +264,12 @@ struct CarmenReader {
 impl Step for CarmenReader {
     fn step(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<bool> {
         let Some(next) = self.lines.next() else {
-            self.flush_odometry(out)?;
             self.times.flush(f64::INFINITY, out);
             return self.end().map(|()| false);
         };
         let read = next.and_then(|(line, content)| self.read_line(line, &content, out));
         if read.is_err() {
             // The events of the lines before the error come first.
-            self.flush_odometry(out)?;
             self.times.flush(f64::INFINITY, out);
         }
         read.map(|()| true)
@@ -308,15 +300,6 @@ impl CarmenReader {
                         None => *self.file_max.insert(largest_range(path)?),
                     },
                 };
-                flush_odometry(
-                    &mut self.previous_odometry,
-                    &mut self.pending_odometry,
-                    &mut self.times,
-                    &self.options.odometry_noise,
-                    self.clock,
-                    path,
-                    out,
-                )?;
                 let pose = laser.robot_pose;
                 self.last_laser_pose = Some(pose);
                 let (scan, robot_from_sensor) = to_scan(laser, self.options.min_range, max_range)
@@ -354,13 +337,24 @@ impl CarmenReader {
                     self.previous_odometry = Some(pose);
                     return Ok(());
                 }
-                if self.previous_odometry.is_none() {
-                    self.previous_odometry = Some(pose);
+                let step = match self.previous_odometry {
+                    Some(previous) => Some(
+                        PoseIncrement::between(&previous, &pose, &self.options.odometry_noise)
+                            .map_err(|e| at(path, line, e))?,
+                    ),
+                    None => None,
+                };
+                self.previous_odometry = Some(pose);
+                let event = step.map(|step| Event::Motion(Box::new(step)));
+                if sequence {
+                    if let Some(event) = event {
+                        out.push_back(TimedEvent {
+                            time: line as f64,
+                            event,
+                        });
+                    }
                 } else {
-                    self.pending_odometry = Some((pose, stamp, line));
-                }
-                if !sequence {
-                    self.times.odometry(stamp, None, out);
+                    self.times.odometry(stamp, event, out);
                 }
             }
             None if content.trim_start().starts_with('#') => self.skipped.count("#"),
@@ -368,19 +362,6 @@ impl CarmenReader {
             None => {}
         }
         Ok(())
-    }
-
-    /// Writes the motion since the last increment (see [`flush_odometry`]).
-    fn flush_odometry(&mut self, out: &mut VecDeque<TimedEvent>) -> Result<()> {
-        flush_odometry(
-            &mut self.previous_odometry,
-            &mut self.pending_odometry,
-            &mut self.times,
-            &self.options.odometry_noise,
-            self.clock,
-            self.lines.path(),
-            out,
-        )
     }
 
     /// Counts the impossible readings of a scan and gathers the unit evidence of the first
@@ -766,34 +747,6 @@ fn parse_robot_laser(fields: &Fields) -> Result<LaserLine> {
     })
 }
 
-/// Writes the motion from the odometry pose of the last increment (`previous`) to the latest
-/// `ODOM` pose (`pending`) as one increment, at that line's stamp (or line number).
-fn flush_odometry(
-    previous: &mut Option<Pose2>,
-    pending: &mut Option<(Pose2, f64, usize)>,
-    times: &mut Times,
-    noise: &OdometryNoise,
-    clock: Clock,
-    path: &Path,
-    out: &mut VecDeque<TimedEvent>,
-) -> Result<()> {
-    let (Some(from), Some((pose, stamp, line))) = (*previous, pending.take()) else {
-        return Ok(());
-    };
-    let step = PoseIncrement::between(&from, &pose, noise).map_err(|e| at(path, line, e))?;
-    *previous = Some(pose);
-    let event = Event::Motion(Box::new(step));
-    if clock == Clock::Sequence {
-        out.push_back(TimedEvent {
-            time: line as f64,
-            event,
-        });
-    } else {
-        times.odometry(stamp, Some(event), out);
-    }
-    Ok(())
-}
-
 /// Whether an `ODOM` line at `pose` right after a laser line at `after_scan` re-anchors the
 /// odometry frame rather than reporting motion: it repeats the scan's robot pose (the
 /// reference pose, in the Radish corrected logs) and its stamp is out of order (0 or garbage
@@ -1038,8 +991,8 @@ mod tests {
                 _ => None,
             })
             .collect();
-        // One increment per scan interval: 0 -> 0.3, then 0.25 -> 0.65.
-        let expected = [0.3, 0.4];
+        // 0 -> 0.3, then from the reset at 0.25: 0.45, 0.65.
+        let expected = [0.3, 0.2, 0.2];
         assert_eq!(motion.len(), expected.len(), "{motion:?}");
         for (got, want) in motion.iter().zip(expected) {
             assert!((got - want).abs() < 1e-12, "{motion:?}");
@@ -1058,11 +1011,9 @@ mod tests {
 
     #[test]
     fn times_are_logger_timestamps_repaired_where_out_of_order() {
-        // The motion between two scans is one increment stamped as the last ODOM line
-        // before the later scan: stamped 0 (out of order) it takes the time of the record
-        // after it, the scan; stamped after the scan (jitter) it takes the scan's time. The
-        // lines are not the scans' poses (see
-        // `a_corrected_log_re_anchors_its_odometry_at_each_scan`).
+        // ODOM lines stamped 0 or with a garbage value (3.5) that are motion (not at the
+        // scan's pose: see `a_corrected_log_re_anchors_its_odometry_at_each_scan`); odometry
+        // stamps jitter (10.7 after 10.9).
         let text = [
             odom(0.0, "10.0"),
             odom(0.1, "10.5"),
@@ -1070,11 +1021,10 @@ mod tests {
             odom(0.15, "0"),
             "NEFF 3\n".to_string(),
             odom(0.2, "10.9"),
-            odom(0.3, "11.4"),
+            odom(0.3, "10.7"),
+            odom(0.4, "11.2"),
             flaser(0.4, "11.2"),
-            odom(0.45, "11.3"),
-            odom(0.5, "0"),
-            flaser(0.5, "12.0"),
+            odom(0.45, "3.5"),
         ]
         .concat();
         let data = read("stamps", &text, &CarmenOptions::default()).unwrap();
@@ -1084,10 +1034,12 @@ mod tests {
             [
                 (10.5, 'M'),
                 (10.5, 'S'),
-                (11.2, 'M'), // stamped 11.4, after the scan at 11.2
+                (10.7, 'M'), // stamped 0: the time of the record after it
+                (10.7, 'M'), // 10.9, before 10.7: bounded by the record after it
+                (10.7, 'M'),
+                (11.2, 'M'),
                 (11.2, 'S'),
-                (12.0, 'M'), // stamped 0: the time of the record after it
-                (12.0, 'S'),
+                (11.2, 'M'), // stamped 3.5 at the end: the time before it
             ]
         );
         assert_eq!(data.warnings.len(), 1, "{:?}", data.warnings);
@@ -1097,7 +1049,7 @@ mod tests {
             "{warning}"
         );
         assert!(
-            warning.contains("1 odometry records stamped more than 1 s before"),
+            warning.contains("2 odometry records stamped more than 1 s before"),
             "{warning}"
         );
         assert!(

@@ -1014,9 +1014,24 @@ fn newton(
             return Ok(step_count);
         }
         std::mem::swap(x, &mut trial);
+        // A full step from a point this close to the minimum lands where the next evaluation
+        // would find the stopping test above met (Newton converges quadratically there): the
+        // stage ends at once, without that evaluation.
+        if step == 1.0 && -slope < FINAL_STEP_DECREMENT * (1.0 + eval.value.abs()) {
+            return Ok(step_count + 1);
+        }
     }
     Ok(params.max_newton_steps)
 }
+
+/// A Newton step taken in full whose decrement (`-gradient . direction`) is below this
+/// fraction of `1 + |value|` ends the homotopy stage without a further evaluation: that
+/// evaluation would only confirm convergence (decrement below `1e-12` of it), since the
+/// decrement falls roughly with its square from one step to the next. It saves one of the
+/// 2 to 4 evaluations of a converging stage. (At `1e-11` the engine's solutions on the
+/// benchmarked scans are the same bit for bit as without it, but for one circle whose fit
+/// cost came out lower; at `1e-9` one Intel scan's fit cost came out higher by `4e-8`.)
+const FINAL_STEP_DECREMENT: f64 = 1e-11;
 
 /// Initial normals (facing the sensor, by a total-least-squares line through the neighbours of
 /// the same region), their standard deviations and the bounds of `x` (section 3.2).

@@ -392,10 +392,10 @@ fn real_data_streams_the_events_of_the_in_memory_readers() {
     let root = datasets();
     let carmen = root.join("radish-carmen-corrected");
     let cases = [
-        ("intel-corrected.log.gz", "16360 df5c4ac0622165cf"),
-        ("acapulco-corrected.log.gz", "13863 d6e15417723ebb25"),
-        ("fhw-corrected.log.gz", "14910 d4384fabd6939ae0"),
-        ("freiburg-079-corrected.log.gz", "19306 1f163c0a8bf859a1"),
+        ("intel-corrected.log.gz", "15450 475f36ff03beea7b"),
+        ("acapulco-corrected.log.gz", "13002 192589560fbf5b32"),
+        ("fhw-corrected.log.gz", "14422 b48162592b92c0ca"),
+        ("freiburg-079-corrected.log.gz", "14518 62a5e45cfc7b8653"),
     ];
     for (file, expected) in cases {
         check(
@@ -521,10 +521,10 @@ fn laser_odometry_streams_the_events_of_the_in_memory_version_on_the_intel_log()
     check_laser_odometry(
         || stream_carmen(&intel, &CarmenOptions::default()).unwrap(),
         2000,
-        "614 2bad07b400543aaf",
+        "662 8f0030b371750df3",
         LaserOdometryReport {
-            matched: 80,
-            refused: 10,
+            matched: 83,
+            refused: 11,
         },
     );
 }

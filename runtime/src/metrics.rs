@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::sync::atomic::AtomicBool;
 
 use serde::Serialize;
-use slam_core::{Pose2, Shape, Skips};
+use slam_core::{Pose2, Skips};
 use slam_sensors::TruthKind;
 use slam_sensors::laser_odometry::LaserOdometryReport;
 
@@ -13,8 +13,8 @@ use crate::config::Config;
 use crate::error::Result;
 use crate::eval::{
     ChiSquareSummary, CloseLandmarks, ErrorStats, MapError, MapQuality, TrajectoryErrors,
-    chi_square_summary, close_landmarks, confirmed, feature_counts, map_error_against_landmarks,
-    map_error_against_truth, map_quality, pose_nees, singular_steps, wall_segments,
+    chi_square_summary, close_landmarks, confirmed_wall_segments, feature_counts,
+    map_error_against_landmarks, map_error_against_truth, map_quality, pose_nees, singular_steps,
 };
 use crate::frontend::FrontendCounts;
 use crate::health::Divergence;
@@ -196,13 +196,7 @@ impl RunMetrics {
     /// scans or walls.
     fn map_quality(output: &RunOutput) -> Option<MapQuality> {
         let estimator = output.estimator.as_ref();
-        let shapes: Vec<Shape> = estimator
-            .map()
-            .iter()
-            .filter(|(id, _)| confirmed(estimator, *id))
-            .filter_map(|(_, feature)| feature.shape())
-            .collect();
-        let walls = wall_segments(&shapes);
+        let walls = confirmed_wall_segments(estimator);
         let sample = &output.record.scan_sample;
         if walls.is_empty() || sample.is_empty() {
             return None;

@@ -206,6 +206,20 @@ pub fn map_quality(walls: &[(Vector2<f64>, Vector2<f64>)], points: &[Vector2<f64
     }
 }
 
+/// The wall segments of the estimator's confirmed features (what the map quality figures and
+/// the `relocalize` stage measure against).
+pub fn confirmed_wall_segments(
+    estimator: &dyn slam_core::Estimator<slam_core::Pose2>,
+) -> Vec<(Vector2<f64>, Vector2<f64>)> {
+    let shapes: Vec<Shape> = estimator
+        .map()
+        .iter()
+        .filter(|(id, _)| super::confirmed(estimator, *id))
+        .filter_map(|(_, feature)| feature.shape())
+        .collect();
+    wall_segments(&shapes)
+}
+
 /// The wall segments of shapes (other kinds are left out).
 pub fn wall_segments<'a>(
     shapes: impl IntoIterator<Item = &'a Shape>,

@@ -32,7 +32,7 @@ pub use map::{
 pub(crate) use map_quality::SegmentGrid;
 pub use map_quality::{
     DEFAULT_SAMPLE_SIZE, DOUBLED_ANGLE_DEG, DOUBLED_DISTANCE_M, MapQuality, ScanSample,
-    map_quality, wall_segments,
+    confirmed_wall_segments, map_quality, wall_segments,
 };
 pub use trajectory::{AlignMode, Alignment, ErrorStats, associate, ate, umeyama};
 

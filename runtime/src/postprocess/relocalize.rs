@@ -34,12 +34,12 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{Matrix3, Vector2, Vector3};
-use slam_core::{Estimator, Pose2, Shape, UpdateReport};
+use slam_core::{Estimator, Pose2, UpdateReport};
 use slam_sensors::{Event, TimedEvent};
 
 use super::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
 use crate::error::{Result, RuntimeError};
-use crate::eval::{SegmentGrid, confirmed, map_quality, wall_segments};
+use crate::eval::{SegmentGrid, confirmed_wall_segments, map_quality};
 use crate::session::Observer;
 
 /// The `[[postprocess]]` table of `type = "relocalize"`.
@@ -212,13 +212,7 @@ impl PostProcess for Relocalize {
             )));
         }
         let estimator = run.estimator;
-        let shapes: Vec<Shape> = estimator
-            .map()
-            .iter()
-            .filter(|(id, _)| confirmed(estimator, *id))
-            .filter_map(|(_, feature)| feature.shape())
-            .collect();
-        let walls = wall_segments(&shapes);
+        let walls = confirmed_wall_segments(estimator);
         if walls.is_empty() {
             return Err(RuntimeError::Data(format!(
                 "{}: the map has no confirmed wall, nothing for relocalize to fit the scans to",

@@ -275,6 +275,22 @@ fn blame(table: &toml::Table, error: &toml::de::Error) -> String {
     let mut leaves = Vec::new();
     leaf_paths(table, &mut Vec::new(), &mut leaves);
     let skeleton = toml::Value::Table(only_types(table));
+    if let Err(e) = skeleton.clone().try_into::<Config>() {
+        // A `type` itself is at fault (an unknown estimator, say): name the one the message
+        // quotes, not the first key tried.
+        let message = e.message().trim().to_string();
+        let mut types = Vec::new();
+        type_paths(table, &mut Vec::new(), &mut types);
+        return types
+            .iter()
+            .find_map(|path| {
+                let value = get_path(table, path)?.as_str()?;
+                message
+                    .contains(&format!("variant `{value}`"))
+                    .then(|| format!("[{}] type = \"{value}\": {message}", table_name(path)))
+            })
+            .unwrap_or(message);
+    }
     for path in leaves {
         let mut candidate = skeleton.clone();
         if let Some(value) = get_path(table, &path) {
@@ -319,6 +335,28 @@ fn leaf_paths(table: &toml::Table, prefix: &mut Vec<Step>, out: &mut Vec<Vec<Ste
             }
             _ if key == "type" => {}
             _ => out.push(prefix.clone()),
+        }
+        prefix.pop();
+    }
+}
+
+/// Every path to a `type` key.
+fn type_paths(table: &toml::Table, prefix: &mut Vec<Step>, out: &mut Vec<Vec<Step>>) {
+    for (key, value) in table {
+        prefix.push(Step::Key(key.clone()));
+        match value {
+            toml::Value::Table(inner) => type_paths(inner, prefix, out),
+            toml::Value::Array(items) => {
+                for (i, item) in items.iter().enumerate() {
+                    if let toml::Value::Table(inner) = item {
+                        prefix.push(Step::Index(i));
+                        type_paths(inner, prefix, out);
+                        prefix.pop();
+                    }
+                }
+            }
+            _ if key == "type" => out.push(prefix.clone()),
+            _ => {}
         }
         prefix.pop();
     }
@@ -435,6 +473,15 @@ mod tests {
             (
                 "[[postprocess]]\ntype = \"em-polygon\"\n[[postprocess]]\ntype = \"em-polygon\"\nposes = 3\n",
                 "[postprocess#2] poses = 3",
+            ),
+            // An unknown `type` is named, not the first other key.
+            (
+                "[data.laser_odometry]\nheading_starts = 2\n[estimator]\ntype = \"dead_reckoning\"\n",
+                "[estimator] type = \"dead_reckoning\": unknown variant",
+            ),
+            (
+                "[[postprocess]]\ntype = \"em-polygon\"\n[[postprocess]]\ntype = \"relocalise\"\n",
+                "[postprocess#2] type = \"relocalise\"",
             ),
         ];
         for (text, expected) in cases {

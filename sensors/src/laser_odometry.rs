@@ -29,7 +29,7 @@ use slam_core::{Pose2, Pose3, wrap_angle};
 
 use crate::error::{Result, SensorError};
 use crate::events::{Dataset, Event, EventStream, Pump, Step, TimedEvent};
-use crate::odometry::PoseIncrement;
+use crate::odometry::{OdometryNoise, PoseIncrement};
 
 /// Settings of the laser odometry; `Default` gives values that work on indoor SICK logs.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -86,6 +86,13 @@ pub struct LaserOdometryParams {
     pub heading_starts: usize,
     /// ... this far apart, degrees; the match is the lowest of the minima reached.
     pub heading_start_step_deg: f64,
+    /// The odometry's noise over one scan interval, applied to the compound of the motions
+    /// between two scans (as MRPT's CARMEN import does); unset (the default): the compound
+    /// of the motions' own covariances. A log that records odometry 15 times per scan (the
+    /// Radish logs' own `ODOM` lines) otherwise gets a prior about 4 times too narrow, as the
+    /// motion model's deviations grow with the motion and 15 short motions add in quadrature.
+    /// With it, a refused match's odometry goes out as one increment with this covariance.
+    pub interval_noise: Option<OdometryNoise>,
 }
 
 impl Default for LaserOdometryParams {
@@ -105,6 +112,7 @@ impl Default for LaserOdometryParams {
             normal_reach_per_metre: 0.0,
             heading_starts: 0,
             heading_start_step_deg: 2.0,
+            interval_noise: None,
         }
     }
 }
@@ -228,21 +236,40 @@ fn normals(points: &[Vector2<f64>], reach: f64, reach_per_metre: f64) -> Vec<Opt
     out
 }
 
-/// A uniform grid over reference points for nearest-neighbour queries.
+/// Side of a [`Grid`] cell, m: fine enough that the nearest point of a converged match is
+/// found within the query's own cell and its eight neighbours.
+const GRID_CELL: f64 = 0.1;
+
+/// A uniform grid over reference points for nearest-neighbour queries: the points sorted by
+/// cell, and each occupied cell's range of them.
 struct Grid<'a> {
     cell: f64,
-    cells: HashMap<(i64, i64), Vec<usize>>,
+    /// Indices into `points`, sorted by cell.
+    order: Vec<u32>,
+    /// Each occupied cell's range in `order`.
+    cells: HashMap<u64, (u32, u32), BuildCellHasher>,
     points: &'a [(Vector2<f64>, Vector2<f64>)],
 }
 
 impl<'a> Grid<'a> {
     fn new(points: &'a [(Vector2<f64>, Vector2<f64>)], cell: f64) -> Self {
-        let mut cells: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
-        for (i, (p, _)) in points.iter().enumerate() {
-            cells.entry(Self::key(p, cell)).or_default().push(i);
+        let mut keyed: Vec<(u64, u32)> = points
+            .iter()
+            .enumerate()
+            .map(|(i, (p, _))| (Self::pack(Self::key(p, cell)), i as u32))
+            .collect();
+        keyed.sort_unstable();
+        let mut cells = HashMap::with_capacity_and_hasher(keyed.len() / 4, BuildCellHasher);
+        let mut first = 0;
+        for i in 1..=keyed.len() {
+            if i == keyed.len() || keyed[i].0 != keyed[first].0 {
+                cells.insert(keyed[first].0, (first as u32, i as u32));
+                first = i;
+            }
         }
         Grid {
             cell,
+            order: keyed.into_iter().map(|(_, i)| i).collect(),
             cells,
             points,
         }
@@ -252,31 +279,86 @@ impl<'a> Grid<'a> {
         ((p.x / cell).floor() as i64, (p.y / cell).floor() as i64)
     }
 
-    /// The nearest point within the cell size of `z` whose normal passes `accept`.
+    fn pack((x, y): (i64, i64)) -> u64 {
+        ((x as u32 as u64) << 32) | (y as u32 as u64)
+    }
+
+    /// The nearest point within `reach` of `z` whose normal passes `accept`: the cells are
+    /// searched in square rings around `z`'s, and the search stops once the best point is
+    /// nearer than any cell of the next ring can hold.
     fn nearest(
         &self,
         z: &Vector2<f64>,
+        reach: f64,
         accept: impl Fn(&Vector2<f64>) -> bool,
     ) -> Option<&'a (Vector2<f64>, Vector2<f64>)> {
         let (cx, cy) = Self::key(z, self.cell);
+        let rings = (reach / self.cell).ceil() as i64;
         let mut best: Option<(f64, usize)> = None;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                let Some(members) = self.cells.get(&(cx + dx, cy + dy)) else {
-                    continue;
-                };
-                for &i in members {
-                    let d = (self.points[i].0 - z).norm_squared();
-                    if d <= self.cell * self.cell
-                        && best.is_none_or(|(b, _)| d < b)
-                        && accept(&self.points[i].1)
-                    {
-                        best = Some((d, i));
-                    }
+        let visit = |x: i64, y: i64, best: &mut Option<(f64, usize)>| {
+            let Some(&(first, end)) = self.cells.get(&Self::pack((x, y))) else {
+                return;
+            };
+            for &i in &self.order[first as usize..end as usize] {
+                let i = i as usize;
+                let d = (self.points[i].0 - z).norm_squared();
+                if d <= reach * reach
+                    && best.is_none_or(|(b, _)| d < b)
+                    && accept(&self.points[i].1)
+                {
+                    *best = Some((d, i));
                 }
+            }
+        };
+        for ring in 0..=rings {
+            if ring == 0 {
+                visit(cx, cy, &mut best);
+            } else {
+                for d in -ring..=ring {
+                    visit(cx + d, cy - ring, &mut best);
+                    visit(cx + d, cy + ring, &mut best);
+                }
+                for d in (1 - ring)..ring {
+                    visit(cx - ring, cy + d, &mut best);
+                    visit(cx + ring, cy + d, &mut best);
+                }
+            }
+            let cleared = ring as f64 * self.cell;
+            if best.is_some_and(|(b, _)| b <= cleared * cleared) {
+                break;
             }
         }
         best.map(|(_, i)| &self.points[i])
+    }
+}
+
+/// A multiplicative hash of a packed cell key (SipHash, the default, was a tenth of a
+/// match's time).
+#[derive(Clone, Copy, Default)]
+struct BuildCellHasher;
+
+impl std::hash::BuildHasher for BuildCellHasher {
+    type Hasher = CellHasher;
+    fn build_hasher(&self) -> CellHasher {
+        CellHasher(0)
+    }
+}
+
+/// See [`BuildCellHasher`].
+struct CellHasher(u64);
+
+impl std::hash::Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &byte in bytes {
+            self.write_u64(u64::from(byte));
+        }
+    }
+    fn write_u64(&mut self, value: u64) {
+        let mixed = (self.0 ^ value).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        self.0 = mixed ^ (mixed >> 29);
     }
 }
 
@@ -335,7 +417,6 @@ fn match_to_points(
         SensorError::InvalidArgument("scan match prior covariance is singular".into())
     })?;
     let problem = MatchProblem {
-        reference,
         current,
         current_normals: if params.max_normal_angle_deg < 90.0 {
             normals(current, params.gate, params.normal_reach_per_metre)
@@ -346,7 +427,7 @@ fn match_to_points(
         guess,
         prior_information,
         params,
-        grids: std::cell::RefCell::new(Vec::new()),
+        grid: Grid::new(reference, GRID_CELL),
     };
     let step = params.heading_start_step_deg.to_radians();
     let heading_sigma = guess_covariance[(2, 2)].max(0.0).sqrt();
@@ -397,16 +478,16 @@ fn match_to_points(
 const SCREENING_ITERATIONS: usize = 3;
 
 /// One scan-to-points match: the objective (robust point-to-line terms and the odometry
-/// prior) and the nearest-neighbour grids of its gates, built once and shared by the starts.
+/// prior) and the nearest-neighbour grid of the reference, built once and shared by the
+/// starts and the gates.
 struct MatchProblem<'a> {
-    reference: &'a [(Vector2<f64>, Vector2<f64>)],
     current: &'a [Vector2<f64>],
     current_normals: Vec<Option<Vector2<f64>>>,
     min_normal_cosine: f64,
     guess: &'a Pose2,
     prior_information: Matrix3<f64>,
     params: &'a LaserOdometryParams,
-    grids: std::cell::RefCell<Vec<std::rc::Rc<Grid<'a>>>>,
+    grid: Grid<'a>,
 }
 
 /// A local minimum of a [`MatchProblem`].
@@ -419,15 +500,6 @@ struct Minimum {
 }
 
 impl<'a> MatchProblem<'a> {
-    /// The grid whose cell is `gate` (the `level`-th widening).
-    fn grid(&self, level: usize, gate: f64) -> std::rc::Rc<Grid<'a>> {
-        let mut grids = self.grids.borrow_mut();
-        while grids.len() <= level {
-            grids.push(std::rc::Rc::new(Grid::new(self.reference, gate)));
-        }
-        grids[level].clone()
-    }
-
     /// Gauss-Newton from `start`, iterations `first..end`: the gate narrows from 4 to 1
     /// times `params.gate` over the first three.
     fn minimise(&self, start: Pose2, first: usize, end: usize) -> Option<Minimum> {
@@ -438,7 +510,6 @@ impl<'a> MatchProblem<'a> {
             let level = iteration.min(2);
             let widening = 4.0 * 0.5f64.powi(level as i32);
             let gate = params.gate * widening;
-            let grid = self.grid(level, gate);
             let scale = params.point_sigma * widening;
             let weight = 1.0 / (scale * scale * params.information_divisor);
             let rotation = pose.rotation();
@@ -459,7 +530,7 @@ impl<'a> MatchProblem<'a> {
                 let compatible = |n: &Vector2<f64>| {
                     own_normal.is_none_or(|own| own.dot(n).abs() >= self.min_normal_cosine)
                 };
-                let Some((q, normal)) = grid.nearest(&z, compatible) else {
+                let Some((q, normal)) = self.grid.nearest(&z, gate, compatible) else {
                     cost += rho(gate);
                     continue;
                 };
@@ -738,7 +809,8 @@ impl Matcher {
                 return Ok(());
             }
         };
-        match match_to_local_map(chain, points, &self.pending, params)? {
+        let (odometry, odometry_covariance) = interval_odometry(&self.pending, params)?;
+        match match_to_local_map(chain, points, &odometry, &odometry_covariance, params)? {
             Some((increment, chain_from_current)) => {
                 self.pending.clear();
                 out.push_back(TimedEvent {
@@ -752,7 +824,18 @@ impl Matcher {
                 }
             }
             None => {
-                out.extend(self.pending.drain(..));
+                if params.interval_noise.is_some() {
+                    self.pending.clear();
+                    out.push_back(TimedEvent {
+                        time,
+                        event: Event::Motion(Box::new(PoseIncrement::new(
+                            odometry,
+                            odometry_covariance,
+                        )?)),
+                    });
+                } else {
+                    out.extend(self.pending.drain(..));
+                }
                 self.counts.refused.fetch_add(1, Ordering::Relaxed);
                 // The local map no longer fits the pose chain: start afresh here.
                 self.chain = Some(Chain::new(mount, points, params));
@@ -762,20 +845,36 @@ impl Matcher {
     }
 }
 
+/// The odometry between two scans (the compound of `pending`) and its covariance: the
+/// compound's own, or `params.interval_noise` applied to the whole interval.
+fn interval_odometry(
+    pending: &[TimedEvent],
+    params: &LaserOdometryParams,
+) -> Result<(Pose2, Matrix3<f64>)> {
+    let (odometry, covariance) = compound(pending)?;
+    let covariance = match &params.interval_noise {
+        Some(noise) => noise.covariance(&odometry),
+        None => covariance,
+    };
+    // A floor keeps the prior invertible for a robot that stood still.
+    let floor = Matrix3::from_diagonal(&Vector3::new(1e-8, 1e-8, 1e-10));
+    Ok((odometry, covariance + floor))
+}
+
 /// The robot increment from the previous scan to `current` by matching `current` to the
-/// chain's local map, the odometry `pending` since the previous scan as the prior; with the
-/// current scan's sensor pose in the chain frame. `None` if the match is refused.
+/// chain's local map, the `odometry` since the previous scan (with its covariance) as the
+/// prior; with the current scan's sensor pose in the chain frame. `None` if the match is
+/// refused.
 fn match_to_local_map(
     chain: &Chain,
     current: &[Vector2<f64>],
-    pending: &[TimedEvent],
+    odometry: &Pose2,
+    odometry_covariance: &Matrix3<f64>,
     params: &LaserOdometryParams,
 ) -> Result<Option<(PoseIncrement, Pose2)>> {
     let robot_from_sensor = &chain.robot_from_sensor;
-    let (odometry, odometry_covariance) = compound(pending)?;
-    // A floor keeps the prior invertible for a robot that stood still.
-    let floor = Matrix3::from_diagonal(&Vector3::new(1e-8, 1e-8, 1e-10));
-    let odometry_covariance = odometry_covariance + floor;
+    let odometry = *odometry;
+    let odometry_covariance = *odometry_covariance;
     let (sensor_motion, d_sensor_motion) = conjugate(&robot_from_sensor.inverse(), &odometry);
     let (guess, _, d_guess) = chain
         .chain_from_previous

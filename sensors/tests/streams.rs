@@ -884,3 +884,92 @@ fn event_streams_round_trip_datasets_and_count_skipped_lines_as_they_go() {
     let back = EventStream::from_dataset(data).into_dataset().unwrap();
     assert_eq!(fingerprint(&back), expected);
 }
+
+/// RMS translation error of `estimates` against `truths` after the best rigid planar
+/// alignment (closed-form 2-D Kabsch), m.
+fn aligned_rmse(estimates: &[slam_core::Pose2], truths: &[slam_core::Pose2]) -> f64 {
+    let n = estimates.len() as f64;
+    let mean = |poses: &[slam_core::Pose2]| {
+        poses
+            .iter()
+            .fold((0.0, 0.0), |(x, y), p| (x + p.x / n, y + p.y / n))
+    };
+    let ((ex, ey), (tx, ty)) = (mean(estimates), mean(truths));
+    let (mut dot, mut cross) = (0.0, 0.0);
+    for (e, t) in estimates.iter().zip(truths) {
+        let (ax, ay, bx, by) = (e.x - ex, e.y - ey, t.x - tx, t.y - ty);
+        dot += ax * bx + ay * by;
+        cross += ax * by - ay * bx;
+    }
+    let (sin, cos) = cross.atan2(dot).sin_cos();
+    let sum: f64 = estimates
+        .iter()
+        .zip(truths)
+        .map(|(e, t)| {
+            let (ax, ay) = (e.x - ex, e.y - ey);
+            let (x, y) = (cos * ax - sin * ay + tx, sin * ax + cos * ay + ty);
+            (x - t.x).powi(2) + (y - t.y).powi(2)
+        })
+        .sum();
+    (sum / n).sqrt()
+}
+
+/// The laser odometry of `configs/carmen-walls.toml` on the Intel lab with the log's own
+/// odometry (15 `ODOM` lines per scan, heading drifting about 0.06 rad per metre): with
+/// the odometry a weak prior over each scan interval (`interval_noise`, ten times the
+/// default model) the path stays near the reference (0.19 m when measured); with the compound
+/// of the 15 records' covariances as the prior it is lost (13.8 m).
+#[test]
+#[cfg_attr(
+    not(slam_data),
+    ignore = "needs the real datasets (DATASETS.md, SLAM_DATA_DIR)"
+)]
+fn a_weak_interval_prior_keeps_the_intel_lab_with_its_own_odometry() {
+    use slam_sensors::odometry::OdometryNoise;
+    let intel = datasets().join("radish-carmen-corrected/intel-corrected.log.gz");
+    let drift = |interval_noise: Option<OdometryNoise>| {
+        let dataset = stream_carmen(&intel, &CarmenOptions::default())
+            .unwrap()
+            .into_dataset()
+            .unwrap();
+        let params = LaserOdometryParams {
+            local_map_scans: 50,
+            keyframe_distance: 0.2,
+            keyframe_angle: 0.1,
+            normal_reach_per_metre: 0.1,
+            heading_starts: 2,
+            interval_noise,
+            ..LaserOdometryParams::default()
+        };
+        let (matched, _) = laser_odometry(dataset, &params).unwrap();
+        let (mut pose, mut estimates, mut truths) = (None, Vec::new(), Vec::new());
+        for timed in &matched.events {
+            match &timed.event {
+                Event::Motion(motion) => {
+                    if let Some(p) = pose.as_mut() {
+                        *p = motion.predict(p).unwrap().pose;
+                    }
+                }
+                Event::GroundTruth { pose: truth, .. } => {
+                    estimates.push(*pose.get_or_insert(*truth));
+                    truths.push(*truth);
+                }
+                _ => {}
+            }
+        }
+        aligned_rmse(&estimates, &truths)
+    };
+    let model = OdometryNoise::default();
+    let weak = OdometryNoise {
+        translation_per_metre: 10.0 * model.translation_per_metre,
+        translation_per_radian: 10.0 * model.translation_per_radian,
+        rotation_per_radian: 10.0 * model.rotation_per_radian,
+        rotation_per_metre: 10.0 * model.rotation_per_metre,
+        floor_translation: 10.0 * model.floor_translation,
+        floor_rotation: 10.0 * model.floor_rotation,
+    };
+    let (narrow, wide) = (drift(None), drift(Some(weak)));
+    eprintln!("compound prior {narrow:.3} m, weak interval prior {wide:.3} m");
+    assert!(wide < 0.4, "weak interval prior {wide:.3} m");
+    assert!(narrow > 2.0, "compound prior {narrow:.3} m");
+}

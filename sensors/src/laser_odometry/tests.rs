@@ -353,14 +353,13 @@ fn the_normal_check_keeps_the_match_and_refuses_crossed_surfaces() {
     let turned = Pose2::new(0.0, 0.0, std::f64::consts::FRAC_PI_2);
     let pairs = |params: &LaserOdometryParams| {
         let problem = MatchProblem {
-            reference: &reference,
             current: &points,
             current_normals: normals(&points, params.gate, params.normal_reach_per_metre),
             min_normal_cosine: params.max_normal_angle_deg.to_radians().cos(),
             guess: &turned,
             prior_information: Matrix3::identity(),
             params,
-            grids: std::cell::RefCell::new(Vec::new()),
+            grid: Grid::new(&reference, GRID_CELL),
         };
         problem.minimise(turned, 2, 3).map_or(0, |m| m.matched)
     };
@@ -399,4 +398,58 @@ fn a_sure_heading_needs_no_extra_starts() {
             .reference_from_current
     };
     assert_eq!(run(5).to_vector(), run(0).to_vector());
+}
+
+/// `interval_noise` replaces the compound's covariance by the model's over the whole
+/// interval: many short motions no longer make a narrow prior.
+#[test]
+fn interval_noise_applies_the_model_to_the_whole_interval() {
+    let noise = OdometryNoise::default();
+    let step = Pose2::new(0.1, 0.0, 0.05);
+    let motions: Vec<TimedEvent> = (0..15)
+        .map(|k| TimedEvent {
+            time: k as f64,
+            event: Event::Motion(Box::new(
+                PoseIncrement::between(&Pose2::identity(), &step, &noise).unwrap(),
+            )),
+        })
+        .collect();
+    let compound_only = LaserOdometryParams::default();
+    let (total, narrow) = interval_odometry(&motions, &compound_only).unwrap();
+    let per_interval = LaserOdometryParams {
+        interval_noise: Some(noise.clone()),
+        ..LaserOdometryParams::default()
+    };
+    let (same_total, wide) = interval_odometry(&motions, &per_interval).unwrap();
+    assert!((total.to_vector() - same_total.to_vector()).amax() < 1e-15);
+    let model = noise.covariance(&total);
+    assert!((wide[(2, 2)] - model[(2, 2)]).abs() < 1e-9);
+    // Fifteen motions in quadrature: about a fifteenth of the variance.
+    assert!(narrow[(2, 2)] < 0.2 * wide[(2, 2)], "{narrow} {wide}");
+}
+
+proptest! {
+    /// The ring search finds the point a full search finds: the nearest within the reach
+    /// whose normal passes the check.
+    #[test]
+    fn the_grid_finds_the_nearest_point_a_full_search_finds(
+        coordinates in proptest::collection::vec((-3.0f64..3.0, -3.0f64..3.0, -1.0f64..1.0), 1..200),
+        query in (-3.5f64..3.5, -3.5f64..3.5),
+        reach in 0.01f64..1.5,
+    ) {
+        let points: Vec<(Vector2<f64>, Vector2<f64>)> = coordinates
+            .iter()
+            .map(|&(x, y, a)| (Vector2::new(x, y), Vector2::new(a.cos(), a.sin())))
+            .collect();
+        let z = Vector2::new(query.0, query.1);
+        let accept = |n: &Vector2<f64>| n.x > -0.5;
+        let full = points
+            .iter()
+            .filter(|(p, n)| (p - z).norm() <= reach && accept(n))
+            .map(|(p, _)| (p - z).norm())
+            .fold(None, |best: Option<f64>, d| Some(best.map_or(d, |b| b.min(d))));
+        let grid = Grid::new(&points, GRID_CELL);
+        let found = grid.nearest(&z, reach, accept).map(|(p, _)| (p - z).norm());
+        prop_assert_eq!(found, full);
+    }
 }

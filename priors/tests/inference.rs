@@ -204,3 +204,40 @@ fn straight_regions_are_the_walls() {
         assert!((d - truth).abs() < 0.01, "{distances:?}");
     }
 }
+
+/// The relaxed rectangular prior (source, Fig. 2c) as printed there bounds the turn between
+/// neighbouring regions by `cos(d) <= cos(93 deg)` and `-cos(d) <= -cos(87 deg)`: `cos(d)` at
+/// most -0.052 and at least +0.052, which no angle satisfies. The shipped prior exchanges the
+/// two bounds (`|cos(d)| <= sin(3 deg)`, the 90 +- 3 degrees the figure's caption names). In a
+/// square room the shipped prior keeps every corner a region boundary of one surface at a
+/// right angle; the printed one can never join two regions, and every corner becomes a
+/// boundary between surfaces.
+#[test]
+fn the_relaxed_rectangular_prior_as_printed_admits_no_corner() {
+    let mut library = Library::shipped().unwrap();
+    let printed = library
+        .add(
+            "name: Rectangular prior (relaxed, as printed)\nspecializes: Polygonal prior\n\
+             priorlet different_region:\n  tolerance = 3\n  \
+             cos(alpha_2 - alpha_1) <= cos(deg2rad(90 + tolerance))\n  \
+             -cos(alpha_2 - alpha_1) <= -cos(deg2rad(90 - tolerance))\n",
+            "printed.prior",
+        )
+        .unwrap();
+    let scene = Scene::rectangle(4.0, 4.0);
+    let sim = full_scan(&scene, [1.7, 2.2, 0.3], -3.0, 180, 0.01, 0, 7);
+    let input = ScanInput::from_scan(&sim.scan, 0.01).unwrap();
+    let count = |name: &str, topology: Topology| {
+        let solution = infer(&library.compile(name).unwrap(), &input, &Params::default()).unwrap();
+        assert!(solution.feasible, "{name}");
+        solution
+            .links
+            .iter()
+            .filter(|l| l.topology == topology)
+            .count()
+    };
+    let shipped = "Rectangular prior (relaxed)";
+    assert!(count(shipped, Topology::DifferentRegion) >= 3, "shipped");
+    assert_eq!(count(&printed, Topology::DifferentRegion), 0, "printed");
+    assert!(count(&printed, Topology::DifferentSurface) >= 3, "printed");
+}

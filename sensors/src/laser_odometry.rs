@@ -18,6 +18,11 @@
 //! A match is refused (and the odometry kept) when too few points pair up, the normal equations
 //! are singular, or the match lies more than `max_mahalanobis` (squared) from the odometry under
 //! the odometry's covariance.
+//!
+//! The prior's covariance is the compound of the covariances of the motions between the two
+//! scans, or, with `interval_noise`, an [`OdometryNoise`] model applied to the whole interval
+//! (`configs/carmen-walls.toml`: ten times the default deviations, a weak prior, as real
+//! odometry slips and drifts beyond its model).
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;

@@ -216,27 +216,13 @@ impl CarmenConfig {
     /// The reader's options; an error when a noise term is negative or not finite.
     pub fn options(&self) -> Result<CarmenOptions> {
         let n = &self.odometry_noise;
-        let terms = [
-            ("translation_per_metre", n.translation_per_metre),
-            ("translation_per_radian", n.translation_per_radian),
-            ("rotation_per_radian", n.rotation_per_radian),
-            ("rotation_per_metre", n.rotation_per_metre),
-            ("floor_translation", n.floor_translation),
-            ("floor_rotation", n.floor_rotation),
-        ];
-        if let Some((name, value)) = terms.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
-            return Err(RuntimeError::setting(
-                "data.carmen.odometry_noise",
-                format!("{name} must be finite and non-negative, got {value}"),
-            ));
-        }
-        if n.floor_translation == 0.0 || n.floor_rotation == 0.0 {
-            return Err(RuntimeError::setting(
-                "data.carmen.odometry_noise",
-                "floor_translation and floor_rotation must be positive (a motion of zero would \
-                 have a singular covariance)",
-            ));
-        }
+        n.validate().map_err(|e| {
+            let message = match e {
+                slam_sensors::SensorError::InvalidArgument(message) => message,
+                other => other.to_string(),
+            };
+            RuntimeError::setting("data.carmen.odometry_noise", message)
+        })?;
         Ok(CarmenOptions {
             odometry_noise: n.clone(),
             ..CarmenOptions::default()

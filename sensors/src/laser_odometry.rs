@@ -159,12 +159,20 @@ impl LaserOdometryParams {
                 "keyframe_angle >= 0",
             ),
         ];
-        match checks.iter().find(|(ok, _)| !ok) {
-            Some((_, what)) => Err(SensorError::InvalidArgument(format!(
+        if let Some((_, what)) = checks.iter().find(|(ok, _)| !ok) {
+            return Err(SensorError::InvalidArgument(format!(
                 "laser odometry: {what}"
-            ))),
-            None => Ok(()),
+            )));
         }
+        if let Some(noise) = &self.interval_noise {
+            noise.validate().map_err(|e| match e {
+                SensorError::InvalidArgument(message) => SensorError::InvalidArgument(format!(
+                    "laser odometry: interval_noise: {message}"
+                )),
+                other => other,
+            })?;
+        }
+        Ok(())
     }
 }
 

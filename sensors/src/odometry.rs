@@ -144,6 +144,30 @@ impl Default for OdometryNoise {
 }
 
 impl OdometryNoise {
+    /// Checks that every term is finite and non-negative and that both floors are positive
+    /// (a motion of zero would otherwise have a singular covariance).
+    pub fn validate(&self) -> Result<()> {
+        let terms = [
+            ("translation_per_metre", self.translation_per_metre),
+            ("translation_per_radian", self.translation_per_radian),
+            ("rotation_per_radian", self.rotation_per_radian),
+            ("rotation_per_metre", self.rotation_per_metre),
+            ("floor_translation", self.floor_translation),
+            ("floor_rotation", self.floor_rotation),
+        ];
+        for (name, value) in terms {
+            positive(value, name)?;
+        }
+        if self.floor_translation == 0.0 || self.floor_rotation == 0.0 {
+            return Err(SensorError::InvalidArgument(
+                "floor_translation and floor_rotation must be positive (a motion of zero would \
+                 have a singular covariance)"
+                    .into(),
+            ));
+        }
+        Ok(())
+    }
+
     /// The diagonal covariance of an increment.
     pub fn covariance(&self, delta: &Pose2) -> Matrix3<f64> {
         let d = delta.translation().norm();

@@ -453,3 +453,28 @@ proptest! {
         prop_assert_eq!(found, full);
     }
 }
+
+#[test]
+fn a_bad_interval_noise_is_an_error_naming_it() {
+    for noise in [
+        OdometryNoise {
+            rotation_per_radian: -0.1,
+            ..OdometryNoise::default()
+        },
+        OdometryNoise {
+            floor_rotation: 0.0,
+            ..OdometryNoise::default()
+        },
+        OdometryNoise {
+            translation_per_metre: f64::NAN,
+            ..OdometryNoise::default()
+        },
+    ] {
+        let params = LaserOdometryParams {
+            interval_noise: Some(noise),
+            ..LaserOdometryParams::default()
+        };
+        let error = params.validate().unwrap_err().to_string();
+        assert!(error.contains("interval_noise"), "{error}");
+    }
+}

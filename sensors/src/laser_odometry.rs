@@ -24,7 +24,9 @@
 //! (`configs/carmen-walls.toml`: ten times the default deviations, a weak prior, as real
 //! odometry slips and drifts beyond its model).
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
+
+use rustc_hash::{FxBuildHasher, FxHashMap};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -260,7 +262,7 @@ struct Grid<'a> {
     /// Indices into `points`, sorted by cell.
     order: Vec<u32>,
     /// Each occupied cell's range in `order`.
-    cells: HashMap<u64, (u32, u32), BuildCellHasher>,
+    cells: FxHashMap<u64, (u32, u32)>,
     points: &'a [(Vector2<f64>, Vector2<f64>)],
 }
 
@@ -272,7 +274,7 @@ impl<'a> Grid<'a> {
             .map(|(i, (p, _))| (Self::pack(Self::key(p, cell)), i as u32))
             .collect();
         keyed.sort_unstable();
-        let mut cells = HashMap::with_capacity_and_hasher(keyed.len() / 4, BuildCellHasher);
+        let mut cells = FxHashMap::with_capacity_and_hasher(keyed.len() / 4, FxBuildHasher);
         let mut first = 0;
         for i in 1..=keyed.len() {
             if i == keyed.len() || keyed[i].0 != keyed[first].0 {
@@ -342,36 +344,6 @@ impl<'a> Grid<'a> {
             }
         }
         best.map(|(_, i)| &self.points[i])
-    }
-}
-
-/// A multiplicative hash of a packed cell key (SipHash, the default, was a tenth of a
-/// match's time).
-#[derive(Clone, Copy, Default)]
-struct BuildCellHasher;
-
-impl std::hash::BuildHasher for BuildCellHasher {
-    type Hasher = CellHasher;
-    fn build_hasher(&self) -> CellHasher {
-        CellHasher(0)
-    }
-}
-
-/// See [`BuildCellHasher`].
-struct CellHasher(u64);
-
-impl std::hash::Hasher for CellHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-    fn write(&mut self, bytes: &[u8]) {
-        for &byte in bytes {
-            self.write_u64(u64::from(byte));
-        }
-    }
-    fn write_u64(&mut self, value: u64) {
-        let mixed = (self.0 ^ value).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        self.0 = mixed ^ (mixed >> 29);
     }
 }
 

@@ -308,7 +308,7 @@ fn union_length(mut intervals: Vec<(f64, f64)>) -> f64 {
 pub(crate) struct SegmentGrid<'a> {
     cell: f64,
     walls: &'a [(Vector2<f64>, Vector2<f64>)],
-    cells: std::collections::HashMap<(i64, i64), Vec<usize>>,
+    cells: rustc_hash::FxHashMap<(i64, i64), Vec<usize>>,
     /// Bounds of the occupied cells.
     lo: (i64, i64),
     hi: (i64, i64),
@@ -317,7 +317,7 @@ pub(crate) struct SegmentGrid<'a> {
 impl<'a> SegmentGrid<'a> {
     /// A grid of `cell`-sized squares over `walls`.
     pub(crate) fn new(walls: &'a [(Vector2<f64>, Vector2<f64>)], cell: f64) -> Self {
-        let mut cells: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();
+        let mut cells: rustc_hash::FxHashMap<(i64, i64), Vec<usize>> = Default::default();
         let key = |v: f64| (v / cell).floor() as i64;
         let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
         for (k, (a, b)) in walls.iter().enumerate() {

@@ -25,11 +25,10 @@
 //! odometry slips and drifts beyond its model).
 
 use std::collections::VecDeque;
-
-use rustc_hash::{FxBuildHasher, FxHashMap};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+use rustc_hash::{FxBuildHasher, FxHashMap};
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
 use slam_core::{Pose2, Pose3, wrap_angle};

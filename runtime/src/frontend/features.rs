@@ -126,6 +126,11 @@ pub struct FeaturesFrontendConfig {
     pub image: ImageExtractorParams,
     /// Distance above the camera at which a one-view ceiling feature is placed, m.
     pub assumed_ceiling_depth: f64,
+    /// Treat every laser and camera as mounted level: the pitch and roll of each mount are
+    /// dropped before the observations are built, as a planar SLAM system assumes. For
+    /// studying what ignoring a tilted mount costs (BENCHMARKS.md, "A tilted laser and
+    /// camera"); default false.
+    pub level_mounts: bool,
 }
 
 impl Default for FeaturesFrontendConfig {
@@ -148,6 +153,7 @@ impl Default for FeaturesFrontendConfig {
             pole_sigma_floor: 0.01,
             image: ImageExtractorParams::default(),
             assumed_ceiling_depth: 2.3,
+            level_mounts: false,
         }
     }
 }
@@ -369,16 +375,28 @@ impl FeaturesFrontend {
 
 impl Frontend for FeaturesFrontend {
     fn observe(&mut self, event: &Event) -> Result<Vec<Observation>> {
+        let mount = |robot_from_sensor: &Pose3| {
+            if self.config.level_mounts {
+                Pose3::new(
+                    robot_from_sensor.translation,
+                    robot_from_sensor.yaw,
+                    0.0,
+                    0.0,
+                )
+            } else {
+                *robot_from_sensor
+            }
+        };
         match event {
             Event::Scan {
                 scan,
                 robot_from_sensor,
-            } => Ok(self.scan_observations(scan, robot_from_sensor)),
+            } => Ok(self.scan_observations(scan, &mount(robot_from_sensor))),
             Event::Image {
                 image,
                 camera,
                 robot_from_sensor,
-            } => self.image_observations(image, camera, robot_from_sensor),
+            } => self.image_observations(image, camera, &mount(robot_from_sensor)),
             Event::Observations(given) if self.use_given => {
                 let mut observations = given.clone();
                 if self.config.ignore_landmark_ids {

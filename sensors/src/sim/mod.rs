@@ -352,14 +352,18 @@ fn gaussian(rng: &mut ChaCha8Rng, sigma: f64) -> f64 {
     Normal::new(0.0, sigma).map_or(0.0, |n| n.sample(rng))
 }
 
-/// A level laser scan from `pose` by ray casting, with range noise; no return beyond the
-/// maximum range (reported as the maximum range).
+/// A laser scan from `pose` by ray casting, with range noise; no return beyond the
+/// maximum range (reported as the maximum range). A tilted laser's beams are cast in 3-D
+/// against the walls and poles (vertical, unbounded in height) and the floor.
 fn cast_scan(
     pose: &Pose2,
     laser: &LaserSpec,
     truth: &TrueMap,
     rng: &mut ChaCha8Rng,
 ) -> Result<LaserScan> {
+    if !laser.is_level() {
+        return cast_tilted_scan(pose, laser, truth, rng);
+    }
     let sensor = pose.compose(&Pose2::new(
         laser.position[0],
         laser.position[1],
@@ -389,6 +393,59 @@ fn cast_scan(
     LaserScan::with_increment(angle_min, increment, ranges, 0.0, laser.max_range)
 }
 
+/// The noisy reading of a beam whose true range is `range` (`None`: no return).
+fn noisy_range(range: Option<f64>, laser: &LaserSpec, rng: &mut ChaCha8Rng) -> f64 {
+    match range {
+        Some(t) if t < laser.max_range => {
+            let noisy = t + gaussian(rng, laser.sigma_range);
+            if noisy >= laser.max_range {
+                laser.max_range
+            } else {
+                noisy.max(1e-3)
+            }
+        }
+        _ => laser.max_range,
+    }
+}
+
+/// [`cast_scan`] for a pitched or rolled laser: each beam's direction in the world is
+/// `R (cos b, sin b, 0)`; its horizontal part is cast in the plane (walls and poles are
+/// vertical), the range is the horizontal distance over the horizontal part's length, and a
+/// beam going down stops at the floor if it reaches it first.
+fn cast_tilted_scan(
+    pose: &Pose2,
+    laser: &LaserSpec,
+    truth: &TrueMap,
+    rng: &mut ChaCha8Rng,
+) -> Result<LaserScan> {
+    let world_from_sensor = pose.to_pose3(0.0).compose(&laser.robot_from_sensor());
+    let rotation = world_from_sensor.rotation();
+    let origin3 = world_from_sensor.translation;
+    let origin = Vector2::new(origin3.x, origin3.y);
+    let fov = laser.fov_deg.to_radians();
+    let increment = fov / (laser.beams - 1) as f64;
+    let angle_min = -fov / 2.0;
+    let ranges = (0..laser.beams)
+        .map(|i| {
+            let bearing = angle_min + increment * i as f64;
+            let direction = rotation * Vector3::new(bearing.cos(), bearing.sin(), 0.0);
+            let horizontal = Vector2::new(direction.x, direction.y);
+            let length = horizontal.norm();
+            let to_wall = (length > 1e-9)
+                .then(|| raycast::cast(&origin, &(horizontal / length), &truth.walls, &truth.poles))
+                .flatten()
+                .map(|t| t / length);
+            let to_floor = (direction.z < -1e-12).then(|| origin3.z / -direction.z);
+            let range = match (to_wall, to_floor) {
+                (Some(w), Some(f)) => Some(w.min(f)),
+                (w, f) => w.or(f),
+            };
+            noisy_range(range, laser, rng)
+        })
+        .collect();
+    LaserScan::with_increment(angle_min, increment, ranges, 0.0, laser.max_range)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -413,6 +470,59 @@ mod tests {
             map.corners.len()
         );
         assert!(map.poles.len() >= 3 && map.ceiling_lines.len() >= 5 && map.lamps.len() >= 10);
+    }
+
+    /// A tilted laser's beams meet a vertical wall farther than level ones (by 1 / cos of
+    /// their elevation) and the floor where they dip; roll lifts the left (+y) side. A level
+    /// laser keeps the planar cast.
+    #[test]
+    fn a_tilted_laser_meets_walls_along_slanted_lines_and_the_floor() {
+        let truth = TrueMap {
+            walls: vec![(Vector2::new(3.0, -50.0), Vector2::new(3.0, 50.0))],
+            corners: Vec::new(),
+            poles: Vec::new(),
+            ceiling_lines: Vec::new(),
+            lamps: Vec::new(),
+            landmarks: Vec::new(),
+        };
+        let laser = |pitch_deg: f64, roll_deg: f64| LaserSpec {
+            position: [0.0, 0.0, 0.3],
+            fov_deg: 180.0,
+            beams: 3,
+            max_range: 20.0,
+            sigma_range: 0.0,
+            pitch_deg,
+            roll_deg,
+            ..LaserSpec::default()
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let pose = Pose2::identity();
+        // Beams at -90, 0 and +90 degrees.
+        let level = cast_scan(&pose, &laser(0.0, 0.0), &truth, &mut rng).unwrap();
+        assert!((level.ranges[1] - 3.0).abs() < 1e-9);
+        assert_eq!(level.ranges[0], 20.0);
+        let pitched_up = cast_scan(&pose, &laser(-5.0, 0.0), &truth, &mut rng).unwrap();
+        let expected = 3.0 / 5f64.to_radians().cos();
+        assert!(
+            (pitched_up.ranges[1] - expected).abs() < 1e-9,
+            "{:?}",
+            pitched_up.ranges
+        );
+        let pitched_down = cast_scan(&pose, &laser(10.0, 0.0), &truth, &mut rng).unwrap();
+        let floor = 0.3 / 10f64.to_radians().sin();
+        assert!(
+            (pitched_down.ranges[1] - floor).abs() < 1e-9,
+            "{:?}",
+            pitched_down.ranges
+        );
+        let rolled = cast_scan(&pose, &laser(0.0, 10.0), &truth, &mut rng).unwrap();
+        assert!(
+            (rolled.ranges[0] - floor).abs() < 1e-9,
+            "{:?}",
+            rolled.ranges
+        );
+        assert_eq!(rolled.ranges[2], 20.0);
+        assert!((rolled.ranges[1] - 3.0).abs() < 1e-9);
     }
 
     #[test]

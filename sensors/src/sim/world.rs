@@ -213,7 +213,7 @@ impl Default for OdometrySpec {
     }
 }
 
-/// A level planar laser.
+/// A planar laser, level unless pitched or rolled.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LaserSpec {
@@ -231,6 +231,12 @@ pub struct LaserSpec {
     pub sigma_range: f64,
     /// A scan every this many steps.
     pub every: usize,
+    /// Mount pitch (about the laser's once-rotated y axis; positive tilts the forward beams
+    /// down), degrees. A tilted scan plane meets the (vertical) walls and poles along
+    /// slanted lines, and the floor (z = 0) where it dips below the laser's height.
+    pub pitch_deg: f64,
+    /// Mount roll (about the laser's twice-rotated x axis), degrees.
+    pub roll_deg: f64,
 }
 
 impl Default for LaserSpec {
@@ -244,6 +250,8 @@ impl Default for LaserSpec {
             max_range: 8.0,
             sigma_range: 0.02,
             every: 2,
+            pitch_deg: 0.0,
+            roll_deg: 0.0,
         }
     }
 }
@@ -252,7 +260,17 @@ impl LaserSpec {
     /// The laser's pose on the robot.
     pub fn robot_from_sensor(&self) -> Pose3 {
         let [x, y, z] = self.position;
-        Pose3::new(Vector3::new(x, y, z), self.yaw_deg.to_radians(), 0.0, 0.0)
+        Pose3::new(
+            Vector3::new(x, y, z),
+            self.yaw_deg.to_radians(),
+            self.pitch_deg.to_radians(),
+            self.roll_deg.to_radians(),
+        )
+    }
+
+    /// Whether the scan plane is horizontal (no pitch, no roll).
+    pub fn is_level(&self) -> bool {
+        self.pitch_deg == 0.0 && self.roll_deg == 0.0
     }
 }
 
@@ -268,6 +286,10 @@ pub struct CameraSpec {
     pub yaw_deg: f64,
     /// An image every this many steps.
     pub every: usize,
+    /// Mount pitch (about the camera's once-rotated y axis; 0: looking straight up), degrees.
+    pub pitch_deg: f64,
+    /// Mount roll (about the camera's twice-rotated x axis), degrees.
+    pub roll_deg: f64,
     /// Width of a ceiling line's bright strip, m.
     pub strip_width: f64,
     /// Standard deviation of the intensity noise, grey levels.
@@ -281,6 +303,8 @@ impl Default for CameraSpec {
             position: [0.0, 0.0, 0.5],
             yaw_deg: 0.0,
             every: 2,
+            pitch_deg: 0.0,
+            roll_deg: 0.0,
             strip_width: 0.05,
             intensity_noise: 4.0,
         }
@@ -288,10 +312,15 @@ impl Default for CameraSpec {
 }
 
 impl CameraSpec {
-    /// The camera's pose on the robot (optical axis up).
+    /// The camera's pose on the robot (optical axis up when pitch and roll are 0).
     pub fn robot_from_sensor(&self) -> Pose3 {
         let [x, y, z] = self.position;
-        Pose3::new(Vector3::new(x, y, z), self.yaw_deg.to_radians(), 0.0, 0.0)
+        Pose3::new(
+            Vector3::new(x, y, z),
+            self.yaw_deg.to_radians(),
+            self.pitch_deg.to_radians(),
+            self.roll_deg.to_radians(),
+        )
     }
 }
 
@@ -623,6 +652,8 @@ impl World {
         if let Some(l) = &self.laser {
             let ok = finite(&l.position)
                 && finite(&[l.yaw_deg, l.fov_deg, l.max_range, l.sigma_range])
+                && l.pitch_deg.abs() <= 30.0
+                && l.roll_deg.abs() <= 30.0
                 && l.beams >= 2
                 && l.fov_deg > 0.0
                 && l.fov_deg <= 360.0
@@ -630,18 +661,20 @@ impl World {
                 && l.sigma_range >= 0.0
                 && l.every > 0;
             if !ok {
-                return bad("laser: at least 2 beams, a field of view in (0, 360], positive max range, every > 0".into());
+                return bad("laser: at least 2 beams, a field of view in (0, 360], positive max range, every > 0, pitch and roll within 30 degrees".into());
             }
         }
         if let Some(c) = &self.camera {
             c.intrinsics.validate()?;
             let ok = finite(&c.position)
                 && finite(&[c.yaw_deg, c.strip_width, c.intensity_noise])
+                && c.pitch_deg.abs() <= 45.0
+                && c.roll_deg.abs() <= 45.0
                 && c.strip_width > 0.0
                 && c.intensity_noise >= 0.0
                 && c.every > 0;
             if !ok {
-                return bad("camera: finite mount, positive strip width, every > 0".into());
+                return bad("camera: finite mount, pitch and roll within 45 degrees, positive strip width, every > 0".into());
             }
         }
         if let Some(s) = &self.range_bearing {

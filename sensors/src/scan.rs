@@ -106,6 +106,49 @@ impl LaserScan {
         range.is_finite() && range > self.min_range && range < self.max_range
     }
 
+    /// Marks as no return (NaN) the valid readings of a laser mounted at `robot_from_sensor`
+    /// whose point lies below the laser and less than `clearance` (m) above the floor, the
+    /// plane z = 0 of the robot frame: a tilted scan plane meets the floor along a straight
+    /// line, which is not a wall. A level mount loses nothing (all its points lie at its own
+    /// height). Returns the number of readings marked.
+    ///
+    /// ```
+    /// use slam_core::{Pose3, nalgebra::Vector3};
+    /// use slam_sensors::LaserScan;
+    /// // A laser 0.3 m up, pitched down 10 degrees: the floor ahead at 0.3 / sin(10 deg).
+    /// let mount = Pose3::new(Vector3::new(0.0, 0.0, 0.3), 0.0, 10f64.to_radians(), 0.0);
+    /// let mut scan = LaserScan::new(-0.1, 0.1, vec![1.0, 1.7276, 1.0], 0.05, 8.0).unwrap();
+    /// assert_eq!(scan.drop_floor_readings(&mount, 0.05), 1);
+    /// assert!(scan.ranges[1].is_nan() && scan.ranges[0] == 1.0);
+    /// // A level laser, even one whose height is unknown (0), keeps every reading.
+    /// let mut level = LaserScan::new(-0.1, 0.1, vec![1.0, 1.7276, 1.0], 0.05, 8.0).unwrap();
+    /// assert_eq!(level.drop_floor_readings(&Pose3::identity(), 0.05), 0);
+    /// ```
+    pub fn drop_floor_readings(
+        &mut self,
+        robot_from_sensor: &slam_core::Pose3,
+        clearance: f64,
+    ) -> usize {
+        let rotation = robot_from_sensor.rotation();
+        let height = robot_from_sensor.translation.z;
+        // The height of a point at range r on beam b: height + r (R (cos b, sin b, 0))_z.
+        let (r20, r21) = (rotation[(2, 0)], rotation[(2, 1)]);
+        let mut dropped = 0;
+        for index in 0..self.ranges.len() {
+            let range = self.ranges[index];
+            if !self.is_valid(range) {
+                continue;
+            }
+            let bearing = self.bearing(index);
+            let rise = range * (r20 * bearing.cos() + r21 * bearing.sin());
+            if rise < -1e-9 && height + rise < clearance {
+                self.ranges[index] = f64::NAN;
+                dropped += 1;
+            }
+        }
+        dropped
+    }
+
     /// The valid readings as points, in beam order.
     pub fn points(&self) -> Vec<ScanPoint> {
         self.ranges

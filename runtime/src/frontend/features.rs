@@ -131,6 +131,11 @@ pub struct FeaturesFrontendConfig {
     /// studying what ignoring a tilted mount costs (BENCHMARKS.md, "A tilted laser and
     /// camera"); default false.
     pub level_mounts: bool,
+    /// Readings of a tilted laser whose point lies below the laser and less than this height
+    /// above the floor (z = 0 of the robot frame) are dropped before extraction, m: a tilted
+    /// scan plane meets the floor along a straight line, which is not a wall. Level mounts
+    /// lose nothing. 0: off.
+    pub floor_clearance: f64,
 }
 
 impl Default for FeaturesFrontendConfig {
@@ -154,6 +159,7 @@ impl Default for FeaturesFrontendConfig {
             image: ImageExtractorParams::default(),
             assumed_ceiling_depth: 2.3,
             level_mounts: false,
+            floor_clearance: 0.05,
         }
     }
 }
@@ -191,11 +197,12 @@ impl FrontendConfig for FeaturesFrontendConfig {
         for (key, value) in [
             ("wall_model_sigma", self.wall_model_sigma),
             ("wall_model_sigma_deg", self.wall_model_sigma_deg),
+            ("floor_clearance", self.floor_clearance),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(RuntimeError::setting(
                     "frontend",
-                    format!("{key} must be a finite deviation of at least 0, got {value}"),
+                    format!("{key} must be finite and at least 0, got {value}"),
                 ));
             }
         }
@@ -230,6 +237,8 @@ struct Counts {
     dropped: usize,
     /// Scans whose structure-prior inference failed: their walls are dropped.
     prior_failures: usize,
+    /// Readings of a tilted laser dropped as floor (`floor_clearance`).
+    floor_readings: usize,
 }
 
 /// The features front-end at work.
@@ -305,6 +314,17 @@ impl FeaturesFrontend {
             robot_from_sensor: *robot_from_sensor,
             measurement,
             landmark_id: None,
+        };
+        let tilted = robot_from_sensor.pitch != 0.0 || robot_from_sensor.roll != 0.0;
+        let without_floor;
+        let scan = if tilted && self.config.floor_clearance > 0.0 {
+            let mut copy = scan.clone();
+            self.counts.floor_readings +=
+                copy.drop_floor_readings(robot_from_sensor, self.config.floor_clearance);
+            without_floor = copy;
+            &without_floor
+        } else {
+            scan
         };
         if self.config.walls {
             let f = self.noise_factor;
@@ -419,6 +439,7 @@ impl Frontend for FeaturesFrontend {
             ("lamps", c.lamps),
             ("dropped", c.dropped),
             ("prior_failures", c.prior_failures),
+            ("floor_readings", c.floor_readings),
         ]
         .into_iter()
         .map(|(k, v)| (k.to_string(), v))

@@ -1,10 +1,17 @@
 //! The ceiling-image front-end on simulated images of the default world: lamps at their true
-//! projections, lines along the true projected ceiling lines.
+//! projections, lines along the true projected ceiling lines; the Hough line method on
+//! synthetic images; the settings' `line_method` word.
 
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use slam_core::nalgebra::{Vector2, Vector3};
 use slam_core::{Pose2, RobotPose};
 use slam_sensors::Event;
-use slam_sensors::extract::image::{ImageExtractorParams, extract_image_features};
+use slam_sensors::camera::{GrayImage, PinholeCamera};
+use slam_sensors::extract::hough::HoughParams;
+use slam_sensors::extract::image::{
+    ImageExtractorParams, ImageLine, LineMethod, extract_image_features,
+};
 use slam_sensors::sim::{World, simulate};
 
 #[test]
@@ -16,6 +23,7 @@ fn lamps_and_lines_are_found_where_the_camera_sees_them() {
     let params = ImageExtractorParams::default();
     let mut pose = Pose2::identity();
     let (mut lamps_found, mut lamps_visible, mut lines_found, mut lines_good) = (0, 0, 0, 0);
+    let (mut hough_found, mut hough_good) = (0, 0);
     let mut images = 0;
     for e in &run.dataset.events {
         let (image, camera, mount) = match &e.event {
@@ -58,19 +66,27 @@ fn lamps_and_lines_are_found_where_the_camera_sees_them() {
                 lamps_found += 1;
             }
         }
-        // Every extracted line lies on a true ceiling line's projection.
-        for line in &features.lines {
-            lines_found += 1;
-            let on_some_true_line = run.truth.ceiling_lines.iter().any(|(a, b)| {
+        // Every extracted line lies on a true ceiling line's projection, by either method.
+        let on_some_true_line = |line: &ImageLine| {
+            run.truth.ceiling_lines.iter().any(|(a, b)| {
                 let (Some(pa), Some(pb)) = (project(a), project(b)) else {
                     return false;
                 };
                 let d = (pb - pa).normalize();
                 let n = Vector2::new(-d.y, d.x);
                 line.ends.iter().all(|q| n.dot(&(q - pa)).abs() < 1.5)
-            });
-            lines_good += usize::from(on_some_true_line);
+            })
+        };
+        for line in &features.lines {
+            lines_found += 1;
+            lines_good += usize::from(on_some_true_line(line));
         }
+        let by_hough = extract_image_features(image, camera, &hough());
+        for line in &by_hough.lines {
+            hough_found += 1;
+            hough_good += usize::from(on_some_true_line(line));
+        }
+        assert_eq!(by_hough.lamps, features.lamps);
     }
     assert!(lamps_visible >= 50, "only {lamps_visible} lamp sightings");
     assert!(
@@ -82,18 +98,18 @@ fn lamps_and_lines_are_found_where_the_camera_sees_them() {
         lines_good as f64 >= 0.97 * lines_found as f64,
         "{lines_good} of {lines_found} lines on a true line"
     );
+    assert!(hough_found >= 100, "only {hough_found} Hough lines");
+    assert!(
+        hough_good as f64 >= 0.97 * hough_found as f64,
+        "{hough_good} of {hough_found} Hough lines on a true line"
+    );
     println!(
-        "{lamps_found} of {lamps_visible} lamps found; {lines_good} of {lines_found} lines on true lines"
+        "{lamps_found} of {lamps_visible} lamps found; {lines_good} of {lines_found} lines on true \
+         lines; Hough: {hough_good} of {hough_found}"
     );
 }
 
 // The Hough line method (`line_method = "hough"`) on synthetic images.
-
-use rand::{RngExt, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use slam_sensors::camera::{GrayImage, PinholeCamera};
-use slam_sensors::extract::hough::HoughParams;
-use slam_sensors::extract::image::{ImageLine, LineMethod};
 
 fn hough() -> ImageExtractorParams {
     ImageExtractorParams {

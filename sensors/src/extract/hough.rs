@@ -1,4 +1,4 @@
-//! Ceiling lines by a standard (rho, theta) Hough transform of the bright pixels, the method of
+//! Ceiling lines by a standard (rho, theta) Hough transform of the bright areas' edges, the method of
 //! the paper's camera experiments (Folkesson et al. 2007, section VII: "Lines were extracted
 //! using the Hough Transform", with OpenCV). Selected by `line_method = "hough"` in the image
 //! extractor settings ([`super::image::LineMethod::Hough`]); lamps are still found as compact
@@ -9,14 +9,18 @@
 //! 1. **Voters.** The pixels of the bright components ([`super::image`]) of at least
 //!    `min_area` px, except solid blobs that are too short to be lines (lamps, lamps cut by
 //!    the border): see [`HoughParams::solid_fill`].
-//! 2. **Accumulator.** Each voter `p` (pixel centre, relative to the image centre) votes once
-//!    for every angle `theta_k = k pi / n` (`n = 180 / theta_step_deg`) in the distance bin of
-//!    `rho = p.x cos(theta) + p.y sin(theta)` (bins of `rho_step_px`).
+//! 2. **Accumulator.** The voters on the edge of the bright area (a dark 4-neighbour inside
+//!    the image; a strip votes with its two long edges, a few times fewer votes than its whole
+//!    width for the same peaks) vote: each, `p` (pixel centre, relative to the image centre),
+//!    once for every angle `theta_k = k pi / n` (`n = 180 / theta_step_deg`) in the distance
+//!    bin of `rho = p.x cos(theta) + p.y sin(theta)` (bins of `rho_step_px`).
 //! 3. **Peaks.** Cells with at least `min_votes` votes that are the largest within
 //!    `nms_theta_deg` and `nms_rho_px` (non-maximum suppression; the angle wraps at pi with
 //!    `rho` negated; of equal cells the first in memory order wins), strongest first, at most
 //!    `max_peaks`.
-//! 4. **Support and refinement.** The voters within `band_px` of a peak's line support it. A
+//! 4. **Support and refinement.** The voters (all, not only the edges) within `band_px` of a
+//!    peak's line support it; a peak most of whose support (more than `max_shared`) belongs to
+//!    lines already found is skipped (the other edge of a strip, a line across a strip). A
 //!    least-squares fit of them (the intensity-weighted principal axis: total least squares,
 //!    as for a component line) gives a refined line, whose band gives the support again
 //!    (three rounds).
@@ -26,7 +30,7 @@
 //!    normal angle and distance in normalized coordinates, `clipped` when it touches the
 //!    border, and the same `min_line_length`, `min_line_elongation` and `border_margin` tests.
 //!    A piece that shares more than `max_shared` of its pixels with lines of stronger peaks is
-//!    the same strip seen again (a thick strip fills several distance bins) and is dropped.
+//!    the same strip seen again and is dropped.
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::Vector2;
@@ -44,8 +48,8 @@ pub struct HoughParams {
     pub theta_step_deg: f64,
     /// Distance resolution of the accumulator, px (0.25 to 10).
     pub rho_step_px: f64,
-    /// Fewest votes of a peak (a voter gives one vote per angle, so a thin line of `L` px
-    /// gets about `L / rho_step_px` votes in its cell).
+    /// Fewest votes of a peak (an edge pixel gives one vote per angle, so a strip's edge of
+    /// `L` px gets about `L` votes in its cell).
     pub min_votes: u32,
     /// Non-maximum suppression: a peak is the largest cell within this angle, degrees (0 to
     /// 45).
@@ -162,12 +166,14 @@ impl Accumulator {
         let offset = (half_diagonal / rho_step).ceil() as usize + 1;
         let bins = 2 * offset + 1;
         let mut votes = vec![0u32; n * bins];
+        // `rho / rho_step + offset + 0.5` is positive, so truncation rounds it.
+        let (scale, shift) = (1.0 / rho_step, offset as f64 + 0.5);
         for (row, &(c, s)) in votes.chunks_exact_mut(bins).zip(&angles) {
+            let (c, s) = (c * scale, s * scale);
             for p in points {
-                let bin = (p.x * c + p.y * s) / rho_step;
-                let bin = bin.round() + offset as f64;
-                if bin >= 0.0 && bin < bins as f64 {
-                    row[bin as usize] += 1;
+                let bin = (p.x * c + p.y * s + shift) as usize;
+                if let Some(cell) = row.get_mut(bin) {
+                    *cell += 1;
                 }
             }
         }
@@ -254,7 +260,17 @@ pub(super) fn lines_from_voters(
         .iter()
         .map(|&(x, y)| Vector2::new(x as f64 + 0.5, y as f64 + 0.5) - half)
         .collect::<Vec<_>>();
-    let accumulator = Accumulator::new(&points, theta_step, rho_step, half.norm());
+    // Only the edge pixels vote: a bright pixel with a dark 4-neighbour in the image.
+    let dark = |x: i64, y: i64| image.get(x, y).is_some_and(|v| v < params.threshold);
+    let edges = voters
+        .iter()
+        .zip(&points)
+        .filter(|&(&(x, y), _)| {
+            dark(x - 1, y) || dark(x + 1, y) || dark(x, y - 1) || dark(x, y + 1)
+        })
+        .map(|(_, p)| *p)
+        .collect::<Vec<_>>();
+    let accumulator = Accumulator::new(&edges, theta_step, rho_step, half.norm());
     let peaks = accumulator.peaks(
         h.min_votes,
         wk as usize,
@@ -273,6 +289,12 @@ pub(super) fn lines_from_voters(
     for (_, cell) in peaks {
         let (normal, rho) = accumulator.line(cell);
         let mut support = within(&normal, rho);
+        // Mostly pixels of lines already found: the other edge of a strip, or a line across
+        // a strip (the wings of its peak).
+        let shared = support.iter().filter(|&&i| claimed[i]).count();
+        if shared as f64 > max_shared * support.len() as f64 {
+            continue;
+        }
         // Least-squares refinement: the principal axis of the support, then its band again.
         let mut fit = None;
         for _ in 0..3 {

@@ -1,11 +1,28 @@
 //! Ceiling image -> lines and lamps: bright connected components of an upward camera image,
-//! elongated ones as ceiling lines, compact ones as lamps.
+//! elongated ones as ceiling lines, compact ones as lamps. The lines can instead be found by a
+//! Hough transform of the bright pixels, as in the paper's camera experiments (section VII:
+//! "Lines were extracted using the Hough Transform"): [`LineMethod::Hough`], see
+//! [`super::hough`].
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{Matrix2, Vector2};
 
+use super::hough::{HoughParams, lines_from_voters};
 use crate::camera::{GrayImage, PinholeCamera};
 use crate::models::{ImageLineObservation, ImagePointObservation};
+
+/// How [`extract_image_features`] finds ceiling lines. Lamps are found the same way by both.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LineMethod {
+    /// Each elongated bright component is one line (`"components"`, the default).
+    #[default]
+    Components,
+    /// Peaks of a (rho, theta) Hough transform of the bright pixels, each refined by a
+    /// least-squares fit of the pixels that support it (`"hough"`; settings in
+    /// [`ImageExtractorParams::hough`]).
+    Hough,
+}
 
 /// Settings of [`extract_image_features`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -31,6 +48,10 @@ pub struct ImageExtractorParams {
     /// px. It adds `2 q^2 / L^2` to the normal angle's variance and `q^2` to the shift's, for
     /// a line of `L` px.
     pub quantization_px: f64,
+    /// How lines are found (`line_method = "components"` or `"hough"`).
+    pub line_method: LineMethod,
+    /// Settings of the Hough line method (used when `line_method = "hough"`).
+    pub hough: HoughParams,
 }
 
 impl Default for ImageExtractorParams {
@@ -44,6 +65,8 @@ impl Default for ImageExtractorParams {
             sigma_px: 0.7,
             border_margin: 4.0,
             quantization_px: 0.1,
+            line_method: LineMethod::Components,
+            hough: HoughParams::default(),
         }
     }
 }
@@ -106,12 +129,16 @@ impl ImageFeatures {
 
 /// Bright components of `image` classified as lines (elongated: a total-least-squares line
 /// through their pixels, ends at their extent) and lamps (compact: their weighted centre).
+/// With [`LineMethod::Hough`], the lines come instead from a Hough transform of the pixels of
+/// the components that are not solid blobs ([`super::hough`]); the lamps are the same.
 pub fn extract_image_features(
     image: &GrayImage,
     camera: &PinholeCamera,
     params: &ImageExtractorParams,
 ) -> ImageFeatures {
     let mut features = ImageFeatures::default();
+    let hough = params.line_method == LineMethod::Hough;
+    let mut voters = Vec::new();
     for component in components(image, params.threshold) {
         if component.len() < params.min_area {
             continue;
@@ -119,16 +146,27 @@ pub fn extract_image_features(
         let moments = Moments::of(image, &component);
         let elongation = (moments.lambda_major / moments.lambda_minor.max(1e-9)).sqrt();
         if elongation >= params.min_line_elongation {
-            if let Some(line) = moments.line(&component, image, camera, params) {
+            if hough {
+                voters.extend_from_slice(&component);
+            } else if let Some(line) = moments.line(&component, image, camera, params) {
                 features.lines.push(line);
             }
-        } else if elongation <= params.max_lamp_elongation && !touches_border(image, &component) {
-            // A lamp cut by the image border has its centroid pulled inwards.
-            features.lamps.push(ImageBlob {
-                centre: moments.centre,
-                area: component.len(),
-            });
+        } else {
+            if elongation <= params.max_lamp_elongation && !touches_border(image, &component) {
+                // A lamp cut by the image border has its centroid pulled inwards.
+                features.lamps.push(ImageBlob {
+                    centre: moments.centre,
+                    area: component.len(),
+                });
+            }
+            if hough && !moments.is_solid(component.len(), params.hough.solid_fill) {
+                // Not elongated but not solid either: strips that cross or touch.
+                voters.extend_from_slice(&component);
+            }
         }
+    }
+    if hough {
+        features.lines = lines_from_voters(&voters, image, camera, params);
     }
     features
 }
@@ -167,15 +205,19 @@ fn components(image: &GrayImage, threshold: u8) -> Vec<Vec<(i64, i64)>> {
 }
 
 /// Intensity-weighted first and second moments of a component.
-struct Moments {
-    centre: Vector2<f64>,
-    major: Vector2<f64>,
-    lambda_major: f64,
-    lambda_minor: f64,
+pub(super) struct Moments {
+    /// Weighted centre, px.
+    pub(super) centre: Vector2<f64>,
+    /// Unit direction of the major axis.
+    pub(super) major: Vector2<f64>,
+    /// Variance along the major axis, px^2.
+    pub(super) lambda_major: f64,
+    /// Variance along the minor axis (at least 1/12: one pixel), px^2.
+    pub(super) lambda_minor: f64,
 }
 
 impl Moments {
-    fn of(image: &GrayImage, pixels: &[(i64, i64)]) -> Self {
+    pub(super) fn of(image: &GrayImage, pixels: &[(i64, i64)]) -> Self {
         let weight = |x: i64, y: i64| image.get(x, y).map_or(0.0, f64::from);
         let total: f64 = pixels.iter().map(|&(x, y)| weight(x, y)).sum();
         let centre = pixels
@@ -205,7 +247,7 @@ impl Moments {
 
     /// The line through the component: its extent along the major axis, and the covariance of
     /// its normal form in normalized coordinates for `n` pixels with `sigma_px` across.
-    fn line(
+    pub(super) fn line(
         &self,
         pixels: &[(i64, i64)],
         image: &GrayImage,
@@ -253,17 +295,26 @@ impl Moments {
         );
         Some(ImageLine { ends, cov, clipped })
     }
+
+    /// Whether `area` pixels with these moments fill at least `min_fill` of the ellipse of
+    /// the same second moments (area `4 pi sqrt(lambda_major lambda_minor)`): about 0.95-1
+    /// for a disc, a half disc or a rectangle, about `4 w / L` for two strips of width `w`
+    /// and length `L` that cross.
+    pub(super) fn is_solid(&self, area: usize, min_fill: f64) -> bool {
+        let ellipse = 4.0 * std::f64::consts::PI * (self.lambda_major * self.lambda_minor).sqrt();
+        area as f64 >= min_fill * ellipse
+    }
 }
 
 /// Whether any of `pixels` lies on the border of `image`.
-fn touches_border(image: &GrayImage, pixels: &[(i64, i64)]) -> bool {
+pub(super) fn touches_border(image: &GrayImage, pixels: &[(i64, i64)]) -> bool {
     pixels.iter().any(|&(x, y)| {
         x == 0 || y == 0 || x + 1 == i64::from(image.width) || y + 1 == i64::from(image.height)
     })
 }
 
 /// Whether both `ends` lie within `margin` px of the same edge of `image`.
-fn along_one_edge(ends: &[Vector2<f64>; 2], image: &GrayImage, margin: f64) -> bool {
+pub(super) fn along_one_edge(ends: &[Vector2<f64>; 2], image: &GrayImage, margin: f64) -> bool {
     let (w, h) = (f64::from(image.width), f64::from(image.height));
     let near = |distance: fn(&Vector2<f64>, f64, f64) -> f64| {
         ends.iter().all(|e| distance(e, w, h) <= margin)

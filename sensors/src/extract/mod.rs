@@ -1,7 +1,9 @@
 //! Extraction front-ends: laser scans to wall segments ([`extract_segments`], or
 //! [`segments_from_readings`] for a segmentation made elsewhere) and poles
-//! ([`extract_poles`]); ceiling images to lines and lamps ([`image`]).
+//! ([`extract_poles`]); ceiling images to lines and lamps ([`image`]; lines also by a Hough
+//! transform: [`hough`]).
 
+pub mod hough;
 pub mod image;
 mod lines;
 mod poles;

@@ -509,6 +509,11 @@ mod tests {
             .to_string();
         assert!(e.contains("hugh") && e.contains("line_method"), "{e}");
         assert!(params_for("hough").is_ok() && params_for("lsd").is_err());
+        // A Hough setting out of its range is an error when the config is checked.
+        let bad = text("hough").replace("min_votes = 25", "band_px = -1.0");
+        let config = slam_runtime::Config::from_toml(&bad, "bad.toml").unwrap();
+        let e = config.validate().unwrap_err().to_string();
+        assert!(e.contains("band_px"), "{e}");
     }
 
     #[test]

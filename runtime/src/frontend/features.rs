@@ -209,6 +209,10 @@ impl FrontendConfig for FeaturesFrontendConfig {
         self.wall_representation
             .validate()
             .map_err(|e| RuntimeError::setting("frontend.wall_representation", e.to_string()))?;
+        self.image
+            .hough
+            .validate()
+            .map_err(|e| RuntimeError::setting("frontend.image", e.to_string()))?;
         if self.walls && self.wall_segmentation == WallSegmentation::Prior {
             PriorSegmenter::new(&self.prior)?;
         }

@@ -1,0 +1,208 @@
+#!/usr/bin/env python3
+"""Regenerates the figures of README.md's results table from the runs that make them.
+
+    scripts/readme-results.py [--slam BIN] [--rows KEY,...] [--check | --write] [--work DIR]
+
+Each row of the table that this script knows is identified by its first cell; the script
+runs the row's command(s) with BIN (default target/release/slam), formats the figures and
+prints the row's third cell. With --check it compares them with README.md and exits 1 if any
+differs (CI runs the cheap rows this way: `--slam target/debug/slam --rows ekf-builtin`);
+with --write it replaces them in README.md. The datasets are read from SLAM_DATA_DIR
+(default ../shared/datasets beside the repository).
+
+Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
+  ekf-builtin        slam run (the built-in world, seed 1)                        ~1 s
+  consistency        slam consistency, seeds 1-50 both wall kinds, 101-150 M-space ~5 min
+  particle-builtin   slam run with fastslam (100 particles) and ipslam            ~20 s
+  victoria-park      slam run --data victoria-park:...                            ~7 s
+  em-polygon-intel   the em-polygon stage on the Intel lab's corrected poses       ~3 s
+  mrclam             slam run --data mrclam:...:1                                  ~1 s
+`--rows cheap` is ekf-builtin; `--rows all` (the default) is every row above.
+
+Not regenerated here (their own scripts run other programs or take tens of minutes; the
+README names the script and commit beside each): the rb2d row
+(../shared/peers/bench-ekf-vs-kfslam.sh, MRPT), Victoria Park FastSLAM (1000 particles:
+minutes), IPSLAM on the Intel lab (several seeds and settings), the Radish CARMEN logs beside
+MRPT (scripts/real-buildings.sh).
+
+Run times are machine figures: a --check of a row with one (victoria-park) fails whenever the
+time moves; read it as "regenerate", not as a regression.
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+README = ROOT / "README.md"
+DATA = Path(os.environ.get("SLAM_DATA_DIR", ROOT.parent / "shared" / "datasets"))
+
+
+def slam(args, work, name, config=None, extra=()):
+    """Runs `slam ARGS... --out WORK/NAME --quiet`; returns the output folder."""
+    out = work / name
+    command = [ARGS.slam, *args]
+    if config is not None:
+        path = work / f"{name}.toml"
+        path.write_text(config)
+        command.insert(2, str(path))
+    command += ["--out", str(out), "--quiet", *extra]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        sys.exit(f"readme-results: {' '.join(command)} failed:\n{result.stderr[-2000:]}")
+    return out
+
+
+def metrics(folder):
+    return json.loads((folder / "metrics.json").read_text())
+
+
+def cm(metres):
+    return f"{100 * metres:.1f} cm"
+
+
+def ekf_builtin(work):
+    m = metrics(slam(["run"], work, "ekf"))
+    return f"{cm(m['ate_rmse_m'])} / {cm(m['map_error_m'])}"
+
+
+def consistency(work):
+    def study(folder, kind):
+        report = json.loads((folder / "consistency.json").read_text())
+        s = report["representations"][kind]
+        return s["mean_nees"], 100 * s["fraction_within_band"]
+
+    both = slam(["consistency", "--runs", "50"], work, "consistency")
+    later = slam(
+        ["consistency", "--runs", "50", "--first-seed", "101", "--walls", "mspace"],
+        work,
+        "consistency-101",
+    )
+    m1, b1 = study(both, "mspace")
+    e1, eb1 = study(both, "endpoints")
+    m2, b2 = study(later, "mspace")
+    return (
+        f"M-space {m1:.2f}, {b1:.1f} % (seeds 101-150: {m2:.2f}, {b2:.1f} %); "
+        f"naive endpoint walls {e1:.0f}, {eb1:.1f} %"
+    )
+
+
+def particle_builtin(work):
+    fs = metrics(
+        slam(["run"], work, "fastslam", '[estimator]\ntype = "fastslam"\nparticles = 100\n')
+    )
+    ip = metrics(slam(["run"], work, "ipslam", '[estimator]\ntype = "ipslam"\n'))
+    lines = sum(ip["features"].get("ppca-line", {}).values())
+    fe, ie = fs["map_error"], ip["map_error"]
+    return (
+        f"{cm(fs['ate_rmse_m'])} / {cm(fe['rms_m'])} ({cm(fe['median_m'])}); "
+        f"{cm(ip['ate_rmse_m'])} / {ie['rms_m']:.2f} m ({cm(ie['median_m'])}), "
+        f"{lines} PPCA lines"
+    )
+
+
+def victoria_park(work):
+    m = metrics(
+        slam(["run"], work, "vp", extra=["--data", f"victoria-park:{DATA / 'victoria-park'}"])
+    )
+    return (
+        f"{m['ate_rmse_m']:.2f} m ({m['ate']['median']:.2f} m); "
+        f"{m['wall_time_s']:.1f} s for 26 minutes of data"
+    )
+
+
+def em_polygon_intel(work):
+    log = DATA / "radish-carmen-corrected" / "intel-corrected.log.gz"
+    config = (
+        '[estimator]\ntype = "dead-reckoning"\n'
+        '[[postprocess]]\ntype = "em-polygon"\nposes = "given"\n'
+    )
+    m = metrics(slam(["run"], work, "em-polygon", config, extra=["--data", f"carmen:{log}"]))
+    fit = m["postprocess"]["em-polygon"]
+    return (
+        f"{fit['segments']}; {cm(fit['mean_point_to_segment_m'])}; "
+        f"{fit['compression_ratio']:.0f}:1 (the paper: 49, 5 cm, 1455:1 on an outdoor map)"
+    )
+
+
+def mrclam(work):
+    m = metrics(
+        slam(["run"], work, "mrclam", extra=["--data", f"mrclam:{DATA / 'utias-mrclam1'}:1"])
+    )
+    e = m["map_error"]
+    return (
+        f"{e['median_m']:.2f} m ({e['rms_m']:.1f} m: landmarks 11 and 17 come out at each "
+        "other's surveyed place, 6 m apart, for robots 1, 2 and 3 alike)"
+    )
+
+
+# key -> (first cell of the README row, function giving its third cell)
+ROWS = {
+    "ekf-builtin": ("built-in world, seed 1 (`slam run`)", ekf_builtin),
+    "consistency": ("built-in world, 50 seeds (`slam consistency`)", consistency),
+    "particle-builtin": (
+        'built-in world, `type = "fastslam"` (100 particles) / `"ipslam"` (201)',
+        particle_builtin,
+    ),
+    "victoria-park": ("Victoria Park, whole run", victoria_park),
+    "em-polygon-intel": (
+        'Intel lab, corrected poses (`[[postprocess]] type = "em-polygon"`, `poses = "given"`)',
+        em_polygon_intel,
+    ),
+    "mrclam": ("MR.CLAM robot 1", mrclam),
+}
+
+
+def cells(line):
+    """The cells of a Markdown table row (`\\|` inside a cell kept)."""
+    inner = line.strip()[1:-1].replace("\\|", "\0")
+    return [c.strip().replace("\0", "\\|") for c in inner.split("|")]
+
+
+def main():
+    global ARGS
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--slam", default=str(ROOT / "target" / "release" / "slam"))
+    parser.add_argument("--rows", default="all", help="KEY,... or cheap or all")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--check", action="store_true", help="exit 1 if README.md differs")
+    mode.add_argument("--write", action="store_true", help="rewrite README.md's rows")
+    parser.add_argument("--work", help="keep the runs in this folder")
+    ARGS = parser.parse_args()
+    if not Path(ARGS.slam).is_file():
+        sys.exit(f"readme-results: no slam binary at {ARGS.slam} (cargo build --release -p slam-cli)")
+    keys = {"all": list(ROWS), "cheap": ["ekf-builtin"]}.get(ARGS.rows, ARGS.rows.split(","))
+    unknown = [k for k in keys if k not in ROWS]
+    if unknown:
+        sys.exit(f"readme-results: unknown rows {unknown}; known: {', '.join(ROWS)}")
+    text = README.read_text()
+    lines = text.split("\n")
+    work = Path(ARGS.work or tempfile.mkdtemp(prefix="readme-results."))
+    work.mkdir(parents=True, exist_ok=True)
+    differing = []
+    for key in keys:
+        first, compute = ROWS[key]
+        index = next((i for i, l in enumerate(lines) if l.startswith("|") and cells(l)[0] == first), None)
+        if index is None:
+            sys.exit(f"readme-results: README.md has no results row starting with `{first}`")
+        row = cells(lines[index])
+        figure = compute(work)
+        same = row[2] == figure
+        print(f"{key}: {'same' if same else 'differs'}\n  README: {row[2]}\n  run:    {figure}")
+        if not same:
+            differing.append(key)
+            row[2] = figure
+            lines[index] = "| " + " | ".join(row) + " |"
+    if ARGS.write and differing:
+        README.write_text("\n".join(lines))
+        print(f"README.md: rewrote {', '.join(differing)}")
+    if ARGS.check and differing:
+        sys.exit(f"readme-results: README.md disagrees with the runs on {', '.join(differing)}")
+
+
+if __name__ == "__main__":
+    main()

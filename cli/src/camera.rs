@@ -6,14 +6,14 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use plotters::prelude::*;
-use slam_core::nalgebra::{Matrix2, Vector2};
-use slam_core::{Pose3, RobotPose, wrap_angle};
+use slam_core::RobotPose;
+use slam_runtime::eval::image_lines::{
+    ImageLineScore, MATCH_ACROSS_PX, MATCH_ALONG_PX, MATCH_DEG, VISIBLE_PX, true_lines,
+};
 use slam_sensors::Event;
-use slam_sensors::camera::PinholeCamera;
 use slam_sensors::extract::image::{
     ImageExtractorParams, ImageLine, LineMethod, extract_image_features,
 };
-use slam_sensors::sim::TrueMap;
 
 use crate::error::{CliError, Result};
 
@@ -172,175 +172,16 @@ pub fn run(args: &CameraArgs) -> Result<()> {
     Ok(())
 }
 
-/// A found line matches a true line when both its ends lie within this distance across the
-/// true line's projection, px.
-pub const MATCH_ACROSS_PX: f64 = 3.0;
-/// ... and within this distance beyond the projected ends along it (a strip's bright area
-/// reaches half its width, 3-3.5 px, beyond its ends), px.
-pub const MATCH_ALONG_PX: f64 = 8.0;
-/// ... and its direction is within this angle of the projection's, degrees.
-pub const MATCH_DEG: f64 = 3.0;
-/// A true line counts as visible (and as missed when no found line matches it) when at least
-/// this much of its projection lies inside the image, px (twice the default
-/// `min_line_length`).
-pub const VISIBLE_PX: f64 = 30.0;
-
-/// A true ceiling line projected into one image.
-struct TrueLine {
-    /// Its projected ends, px (they may lie outside the image).
-    ends: [Vector2<f64>; 2],
-    /// Length of the part inside the image, px.
-    visible: f64,
-}
-
-/// The true ceiling lines of `truth` as the camera at `world_from_camera` sees them (those
-/// with both ends in front of it).
-fn true_lines(truth: &TrueMap, world_from_camera: &Pose3, camera: &PinholeCamera) -> Vec<TrueLine> {
-    let (w, h) = (f64::from(camera.width), f64::from(camera.height));
-    truth
-        .ceiling_lines
-        .iter()
-        .filter_map(|(a, b)| {
-            let (pa, _) = camera
-                .project(&world_from_camera.inverse_transform_point(a))
-                .ok()?;
-            let (pb, _) = camera
-                .project(&world_from_camera.inverse_transform_point(b))
-                .ok()?;
-            Some(TrueLine {
-                ends: [pa, pb],
-                visible: clipped_length(&pa, &pb, w, h),
-            })
-        })
-        .collect()
-}
-
-/// Length of the part of the segment `a`-`b` inside `[0, w] x [0, h]` (Liang-Barsky).
-fn clipped_length(a: &Vector2<f64>, b: &Vector2<f64>, w: f64, h: f64) -> f64 {
-    let d = b - a;
-    let (mut t0, mut t1) = (0.0f64, 1.0f64);
-    for (p, q) in [(-d.x, a.x), (d.x, w - a.x), (-d.y, a.y), (d.y, h - a.y)] {
-        if p == 0.0 {
-            if q < 0.0 {
-                return 0.0;
-            }
-        } else {
-            let r = q / p;
-            if p < 0.0 {
-                t0 = t0.max(r);
-            } else {
-                t1 = t1.min(r);
-            }
-        }
-    }
-    if t1 > t0 { (t1 - t0) * d.norm() } else { 0.0 }
-}
-
-/// The angle error (degrees) and the distance of the midpoint from the true line (px) when
-/// `line` matches `truth` ([`MATCH_ACROSS_PX`], [`MATCH_ALONG_PX`], [`MATCH_DEG`]).
-fn match_error(line: &ImageLine, truth: &TrueLine) -> Option<(f64, f64)> {
-    let [a, b] = truth.ends;
-    let length = (b - a).norm();
-    if length < 1e-9 {
-        return None;
-    }
-    let d = (b - a) / length;
-    let n = Vector2::new(-d.y, d.x);
-    let e = (line.ends[1] - line.ends[0]).try_normalize(1e-12)?;
-    let angle = d.dot(&e).abs().min(1.0).acos().to_degrees();
-    let ends_ok = line.ends.iter().all(|q| {
-        let along = d.dot(&(q - a));
-        n.dot(&(q - a)).abs() <= MATCH_ACROSS_PX
-            && along >= -MATCH_ALONG_PX
-            && along <= length + MATCH_ALONG_PX
-    });
-    let middle = 0.5 * (line.ends[0] + line.ends[1]);
-    (ends_ok && angle <= MATCH_DEG).then(|| (angle, n.dot(&(middle - a)).abs()))
-}
-
-/// The normal form `(angle, distance)` in normalized coordinates of the line through the
-/// normalized points `a`, `b`, with the convention of [`ImageLine::cov`]: the normal points
-/// away from the principal point (`n . a >= 0`).
-fn normal_form(a: &Vector2<f64>, b: &Vector2<f64>) -> Option<(Vector2<f64>, f64)> {
-    let u = (b - a).try_normalize(1e-12)?;
-    let mut normal = Vector2::new(-u.y, u.x);
-    if normal.dot(a) < 0.0 {
-        normal = -normal;
-    }
-    Some((normal, normal.dot(a)))
-}
-
-/// The normalized squared error of `line`'s normal form against the true line's under
-/// `line.cov` (2 on average when the covariance is right).
-fn nees(line: &ImageLine, truth: &TrueLine, camera: &PinholeCamera) -> Option<f64> {
-    let (found_n, found_d) = normal_form(
-        &camera.normalized(&line.ends[0]),
-        &camera.normalized(&line.ends[1]),
-    )?;
-    let (mut true_n, mut true_d) = normal_form(
-        &camera.normalized(&truth.ends[0]),
-        &camera.normalized(&truth.ends[1]),
-    )?;
-    if found_n.dot(&true_n) < 0.0 {
-        (true_n, true_d) = (-true_n, -true_d);
-    }
-    let error = Vector2::new(
-        wrap_angle(found_n.y.atan2(found_n.x) - true_n.y.atan2(true_n.x)),
-        found_d - true_d,
-    );
-    let information: Matrix2<f64> = line.cov.try_inverse()?;
-    Some(error.dot(&(information * error)))
-}
-
-/// What one line method found over a set of images, against the truth.
+/// What one line method found, with the time it took.
 #[derive(Clone, Debug, Default)]
 struct Score {
-    images: usize,
-    found: usize,
-    matching: usize,
-    visible: usize,
-    detected: usize,
-    angle_sum: f64,
-    offset_sum: f64,
-    nees_sum: f64,
-    nees_count: usize,
+    lines: ImageLineScore,
     time: Duration,
 }
 
 impl Score {
-    /// Adds the lines found in one image.
-    fn add(&mut self, lines: &[ImageLine], truths: &[TrueLine], camera: &PinholeCamera) {
-        self.images += 1;
-        self.found += lines.len();
-        let mut seen = vec![false; truths.len()];
-        for line in lines {
-            let best = truths
-                .iter()
-                .enumerate()
-                .filter_map(|(i, t)| match_error(line, t).map(|e| (i, e)))
-                .min_by(|x, y| x.1.1.total_cmp(&y.1.1));
-            let Some((i, (angle, offset))) = best else {
-                continue;
-            };
-            self.matching += 1;
-            seen[i] = true;
-            self.angle_sum += angle;
-            self.offset_sum += offset;
-            if let Some(value) = nees(line, &truths[i], camera) {
-                self.nees_sum += value;
-                self.nees_count += 1;
-            }
-        }
-        for (t, seen) in truths.iter().zip(seen) {
-            if t.visible >= VISIBLE_PX {
-                self.visible += 1;
-                self.detected += usize::from(seen);
-            }
-        }
-    }
-
     fn per_image_us(&self, repeat: usize) -> f64 {
-        self.time.as_secs_f64() * 1e6 / (self.images * repeat).max(1) as f64
+        self.time.as_secs_f64() * 1e6 / (self.lines.images * repeat).max(1) as f64
     }
 }
 
@@ -395,7 +236,7 @@ fn compare(args: &CameraArgs) -> Result<String> {
                     for r in 0..args.repeat {
                         // Interleaved, the order alternating from image to image and
                         // repetition to repetition.
-                        let first = (scores[0].images + r) % 2;
+                        let first = (scores[0].lines.images + r) % 2;
                         for m in [first, 1 - first] {
                             let start = Instant::now();
                             let features = extract_image_features(&image, &camera, &params[m]);
@@ -404,21 +245,22 @@ fn compare(args: &CameraArgs) -> Result<String> {
                         }
                     }
                     for m in 0..2 {
-                        scores[m].add(&found[m], &truths, &camera);
+                        scores[m].lines.add(&found[m], &truths, &camera);
                     }
                 }
                 _ => {}
             }
         }
-        if scores[0].images == 0 {
+        if scores[0].lines.images == 0 {
             return Err(CliError::Usage(format!(
                 "--compare: {} (seed {seed}) has no camera images",
                 args.data
             )));
         }
-        per_seed.push((seed, scores[0].images, ratio(&scores)));
+        per_seed.push((seed, scores[0].lines.images, ratio(&scores)));
         for (total, score) in totals.iter_mut().zip(scores) {
-            merge(total, score);
+            total.lines.merge(&score.lines);
+            total.time += score.time;
         }
     }
     Ok(table(args, &totals, &per_seed))
@@ -429,19 +271,6 @@ fn ratio(scores: &[Score; 2]) -> f64 {
     scores[1].time.as_secs_f64() / scores[0].time.as_secs_f64().max(1e-12)
 }
 
-fn merge(total: &mut Score, score: Score) {
-    total.images += score.images;
-    total.found += score.found;
-    total.matching += score.matching;
-    total.visible += score.visible;
-    total.detected += score.detected;
-    total.angle_sum += score.angle_sum;
-    total.offset_sum += score.offset_sum;
-    total.nees_sum += score.nees_sum;
-    total.nees_count += score.nees_count;
-    total.time += score.time;
-}
-
 /// The comparison as a Markdown table, with the time ratio of each seed.
 fn table(args: &CameraArgs, totals: &[Score; 2], per_seed: &[(u64, usize, f64)]) -> String {
     let mut out = format!(
@@ -450,14 +279,15 @@ fn table(args: &CameraArgs, totals: &[Score; 2], per_seed: &[(u64, usize, f64)])
          | method | lines found | matching a true line | false | visible true lines | missed | \
          mean angle error (deg) | mean offset (px) | mean NEES (2 if right) | time per image \
          (us) | time / components |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
-        totals[0].images,
+        totals[0].lines.images,
         args.data,
         args.seed,
         args.seed + args.seeds - 1,
         args.repeat
     );
     let components_us = totals[0].per_image_us(args.repeat);
-    for ((name, _), s) in METHODS.iter().zip(totals) {
+    for ((name, _), score) in METHODS.iter().zip(totals) {
+        let s = &score.lines;
         let matching = s.matching.max(1) as f64;
         out.push_str(&format!(
             "| {name} | {} | {} | {} | {} | {} | {:.3} | {:.3} | {:.2} | {:.0} | {:.2} |\n",
@@ -469,8 +299,8 @@ fn table(args: &CameraArgs, totals: &[Score; 2], per_seed: &[(u64, usize, f64)])
             s.angle_sum / matching,
             s.offset_sum / matching,
             s.nees_sum / s.nees_count.max(1) as f64,
-            s.per_image_us(args.repeat),
-            s.per_image_us(args.repeat) / components_us.max(1e-12),
+            score.per_image_us(args.repeat),
+            score.per_image_us(args.repeat) / components_us.max(1e-12),
         ));
     }
     out.push_str("\nTime of hough / components per seed:");
@@ -514,64 +344,5 @@ mod tests {
         let config = slam_runtime::Config::from_toml(&bad, "bad.toml").unwrap();
         let e = config.validate().unwrap_err().to_string();
         assert!(e.contains("band_px"), "{e}");
-    }
-
-    #[test]
-    fn clipping_and_matching() {
-        assert!(
-            (clipped_length(
-                &Vector2::new(-10.0, 5.0),
-                &Vector2::new(30.0, 5.0),
-                20.0,
-                10.0
-            ) - 20.0)
-                .abs()
-                < 1e-9
-        );
-        assert_eq!(
-            clipped_length(
-                &Vector2::new(-10.0, 15.0),
-                &Vector2::new(30.0, 15.0),
-                20.0,
-                10.0
-            ),
-            0.0
-        );
-        let truth = TrueLine {
-            ends: [Vector2::new(10.0, 10.0), Vector2::new(110.0, 10.0)],
-            visible: 100.0,
-        };
-        let line = |a: Vector2<f64>, b: Vector2<f64>| ImageLine {
-            ends: [a, b],
-            cov: Matrix2::identity(),
-            clipped: false,
-        };
-        let (angle, offset) = match_error(
-            &line(Vector2::new(8.0, 11.0), Vector2::new(112.0, 11.0)),
-            &truth,
-        )
-        .unwrap();
-        assert!(angle < 1e-9 && (offset - 1.0).abs() < 1e-9);
-        assert!(
-            match_error(
-                &line(Vector2::new(8.0, 14.0), Vector2::new(112.0, 14.0)),
-                &truth
-            )
-            .is_none()
-        );
-        assert!(
-            match_error(
-                &line(Vector2::new(8.0, 10.0), Vector2::new(130.0, 10.0)),
-                &truth
-            )
-            .is_none()
-        );
-        assert!(
-            match_error(
-                &line(Vector2::new(10.0, 8.0), Vector2::new(60.0, 12.0)),
-                &truth
-            )
-            .is_none()
-        );
     }
 }

@@ -1,11 +1,13 @@
 //! Evaluation anyone can call: trajectory errors (ATE, RPE, [`trajectory`]), consistency
 //! (NEES, NIS, [`ChiSquareSummary`]) and map error ([`map_error_against_truth`],
 //! [`map_error_against_landmarks`]) and map quality without truth ([`map_quality`],
-//! [`close_landmarks`]), as functions of plain data (the metrics of a whole run,
+//! [`close_landmarks`]), ceiling lines found in images against the true ones
+//! ([`image_lines`]), as functions of plain data (the metrics of a whole run,
 //! `metrics.json`, are [`crate::RunMetrics`]).
 
 mod close;
 mod consistency;
+pub mod image_lines;
 mod map;
 mod map_quality;
 pub mod trajectory;

@@ -377,17 +377,8 @@ fn cast_scan(
         .map(|i| {
             let bearing = sensor.theta + angle_min + increment * i as f64;
             let direction = Vector2::new(bearing.cos(), bearing.sin());
-            match raycast::cast(&origin, &direction, &truth.walls, &truth.poles) {
-                Some(t) if t < laser.max_range => {
-                    let noisy = t + gaussian(rng, laser.sigma_range);
-                    if noisy >= laser.max_range {
-                        laser.max_range
-                    } else {
-                        noisy.max(1e-3)
-                    }
-                }
-                _ => laser.max_range,
-            }
+            let range = raycast::cast(&origin, &direction, &truth.walls, &truth.poles);
+            noisy_range(range, laser, rng)
         })
         .collect();
     LaserScan::with_increment(angle_min, increment, ranges, 0.0, laser.max_range)

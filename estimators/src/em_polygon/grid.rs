@@ -188,6 +188,67 @@ impl SegmentGrid {
     }
 }
 
+/// A segment's index and its squared distance to a point.
+pub(crate) type Nearest = (u32, f64);
+
+impl SegmentGrid {
+    /// The nearest and the second nearest segment to `p`, as `(index, squared distance)`
+    /// (the second `None` with a single segment). `seen` and `stamp` as in
+    /// [`SegmentGrid::candidates`].
+    pub(crate) fn two_nearest(
+        &self,
+        segments: &[Segment],
+        p: &Vector2<f64>,
+        seen: &mut [u32],
+        stamp: u32,
+    ) -> Option<(Nearest, Option<Nearest>)> {
+        let (ci, cj) = self.cells.cell_of(p);
+        let mut best: Option<(u32, f64)> = None;
+        let mut second: Option<(u32, f64)> = None;
+        let closer = |(k, d): (u32, f64), than: Option<(u32, f64)>| {
+            than.is_none_or(|(tk, td)| d < td || (d == td && k < tk))
+        };
+        let max_ring = self.cells.nx.max(self.cells.ny);
+        for ring in 0..=max_ring {
+            let (i0, i1) = (ci as isize - ring as isize, ci as isize + ring as isize);
+            let (j0, j1) = (cj as isize - ring as isize, cj as isize + ring as isize);
+            for j in j0.max(0)..=j1.min(self.cells.ny as isize - 1) {
+                let on_edge_row = j == j0 || j == j1;
+                let step = if on_edge_row { 1 } else { (i1 - i0).max(1) };
+                let mut i = i0;
+                while i <= i1 {
+                    if i >= 0 && i < self.cells.nx as isize {
+                        let c = self.cells.index((i as usize, j as usize));
+                        for &k in &self.items[self.start[c] as usize..self.start[c + 1] as usize] {
+                            if seen[k as usize] == stamp {
+                                continue;
+                            }
+                            seen[k as usize] = stamp;
+                            let s = &segments[k as usize];
+                            let found = (k, point_segment_distance_sq(p, &s.start, &s.end));
+                            if closer(found, best) {
+                                second = best;
+                                best = Some(found);
+                            } else if closer(found, second) {
+                                second = Some(found);
+                            }
+                        }
+                    }
+                    i += step;
+                }
+            }
+            // Segments not met yet lie in outer rings, at least `ring * h` away.
+            if let Some((_, d)) = second {
+                let reach = ring as f64 * self.cells.h;
+                if reach * reach >= d {
+                    break;
+                }
+            }
+        }
+        best.map(|b| (b, second))
+    }
+}
+
 /// Points by grid cell, to count the points in a small square quickly.
 #[derive(Debug)]
 pub(crate) struct PointGrid {
@@ -247,6 +308,31 @@ impl PointGrid {
             }
         }
         count
+    }
+
+    /// Calls `visit` with every point within `radius` of `centre`.
+    pub(crate) fn for_each_in_disc(
+        &self,
+        centre: &Vector2<f64>,
+        radius: f64,
+        mut visit: impl FnMut(&Vector2<f64>),
+    ) {
+        let reach = Vector2::repeat(radius);
+        let (i0, j0) = self.cells.cell_of(&(centre - reach));
+        let (i1, j1) = self.cells.cell_of(&(centre + reach));
+        let radius_sq = radius * radius;
+        for j in j0..=j1 {
+            let row = self.cells.index((0, j));
+            let (a, b) = (
+                self.start[row + i0] as usize,
+                self.start[row + i1 + 1] as usize,
+            );
+            for p in &self.points[a..b] {
+                if (p - centre).norm_squared() <= radius_sq {
+                    visit(p);
+                }
+            }
+        }
     }
 }
 

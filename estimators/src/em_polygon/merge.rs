@@ -10,11 +10,11 @@
 //! made dimensionless against the scales of the current iteration:
 //!
 //! - `parC = angle(L1, L2) / angle_scale` (the acute angle between the two directions),
-//! - `colC = max(d1, d2) / (sigma_min / 2)`, the larger distance of the two midpoints to the
+//! - `colC = max(d1, d2) / (noise / 2)`, the larger distance of the two midpoints to the
 //!   merged line (how far the segments are from lying on one line; their angle is measured
-//!   by `parC`), in units of half the noise of the
-//!   points, `EmPolygonParams::sigma_min`: two fits of one wall differ by much less than the
-//!   noise; the annealed `sigma` is not used, as early in the run it is metres and would
+//!   by `parC`), in units of half the noise of the points (the measured noise, or
+//!   `EmPolygonParams::sigma_min` without it): two fits of one wall differ by much less than
+//!   the noise; the annealed `sigma` is not used, as early in the run it is metres and would
 //!   merge the two walls of a corridor),
 //! - `proxC = gap / r`, the gap between the two segments' projections on the merged line (0
 //!   when they overlap), in units of the split half-length `r`.

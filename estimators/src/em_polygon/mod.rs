@@ -17,7 +17,9 @@
 //! ignores points farther than `3 sigma` puts lines pulled off their wall by far points back
 //! on it, a last LSS with `C = 0` removes the empty parts of the segments (EMSF trims each
 //! segment to all of its support set, which can stretch it to a few stray points far away),
-//! and the segments are ordered into polylines.
+//! the segments that save less distance than one segment's share are removed (model
+//! selection, `select_segments`; an addition to the paper, see below), and the segments are
+//! ordered into polylines.
 //!
 //! **Scales chosen from the data at every iteration** (the paper computes `2r` and `C`
 //! "dynamically" without giving formulas; these are this implementation's choices):
@@ -25,8 +27,12 @@
 //! - `sigma`, the deviation of the E-step (`w_ij ~ exp(-d^2 / 2 sigma^2)`; the paper writes
 //!   it with `sigma = 1` in its units), is the robust spread of the point-to-nearest-segment
 //!   distances `d_i` of the current model, `1.4826 median_i d_i`, but at most
-//!   `sigma_shrink` (1/2) times the previous iteration's and at least `sigma_min`: large while
-//!   the model is poor (soft assignments), then annealed down to the noise of the points.
+//!   `sigma_shrink` (1/2) times the previous iteration's and at least the noise of the
+//!   points: large while the model is poor (soft assignments), then annealed down to the
+//!   noise. The noise is measured once from the points alone, not from the model (whose
+//!   residuals are as wide as the `sigma` it was fitted with): the median deviation across
+//!   the line fitted to each line-like neighbourhood of a sample of the points (`noise.rs`;
+//!   `sigma_min` is only a guard below it, and the floor with `measure_noise = false`).
 //!   Without the shrinking, a poor model keeps a large `sigma`, hence a large `r`, and the
 //!   split never discriminates. The stop condition (the mean point-to-nearest-segment
 //!   distance changes by less than `tolerance`) is tested once `sigma` no longer shrinks.
@@ -39,6 +45,14 @@
 //!   a subsegment is kept when its square holds more than that fraction of the typical
 //!   support of a subsegment lying on structure.
 //!
+//! **Model selection** (`select.rs`): a segment's saving is how much the points' total
+//! distance to their nearest segment would grow without it. A segment is removed when its
+//! saving is below the total distance over the number of other segments, which lowers the
+//! product mean distance x segments (a relative change of either counts the same), cheapest
+//! first, in rounds, until none qualifies. The distances of points that the full fit leaves
+//! farther than `3 sigma` from every segment (returns in open space, clutter) are left out of
+//! the total, or their large, fixed share would make every segment look cheap.
+//!
 //! The E-step is not a dense points x segments loop: a grid over the segments gives each
 //! point its candidate segments (those within `sqrt(d_min^2 + (4 sigma)^2)`; farther ones
 //! have relative weights below `3.4e-4` and are taken as 0), and points are processed in
@@ -48,7 +62,9 @@
 mod emsf;
 mod grid;
 mod merge;
+mod noise;
 mod polyline;
+mod select;
 mod split;
 
 use serde::{Deserialize, Serialize};
@@ -112,7 +128,11 @@ pub struct Polyline {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EmPolygonParams {
-    /// Smallest E-step deviation `sigma`, m: about the noise of the registered points.
+    /// Measure the noise of the points about their walls from the data (local line fits,
+    /// no model) and anneal `sigma` down to it; `false`: down to `sigma_min`.
+    pub measure_noise: bool,
+    /// Smallest E-step deviation `sigma`, m: a guard below the measured noise (with
+    /// `measure_noise = false`, the noise of the registered points).
     pub sigma_min: f64,
     /// Points farther than `outlier_sigmas * sigma` from every segment get no weight in the
     /// M-step (`None`, the default: all points count, as in the paper). They stay in the
@@ -147,17 +167,21 @@ pub struct EmPolygonParams {
     pub tolerance: f64,
     /// Segment ends closer than `join_scale * r` are joined into polylines.
     pub join_scale: f64,
+    /// After the fit, remove the segments that save less distance than the distance budget
+    /// of one segment (they lower mean distance x segments; an addition to the paper).
+    pub select_segments: bool,
 }
 
 impl Default for EmPolygonParams {
     fn default() -> Self {
         EmPolygonParams {
-            sigma_min: 0.02,
+            measure_noise: true,
+            sigma_min: 0.005,
             sigma_shrink: 0.5,
             outlier_sigmas: None,
             split_scale: 2.0,
             subsegment_points: 10.0,
-            r_min: 0.05,
+            r_min: 0.01,
             r_max: 1.0,
             support_fraction: 0.1,
             min_support: 2.0,
@@ -165,6 +189,7 @@ impl Default for EmPolygonParams {
             max_iterations: 30,
             tolerance: 0.01,
             join_scale: 2.0,
+            select_segments: true,
         }
     }
 }
@@ -261,6 +286,13 @@ pub struct PolygonMap {
     pub median_distance: Option<f64>,
     /// Points per segment endpoint, `points / (2 segments)` (the paper's compression ratio).
     pub compression_ratio: Option<f64>,
+    /// Noise of the points about their walls measured from the data (`None` when not
+    /// measured or no neighbourhood was line-like), m: the floor of the annealed `sigma`.
+    #[serde(default)]
+    pub noise_level: Option<f64>,
+    /// Segments removed by the model selection after the fit.
+    #[serde(default)]
+    pub pruned: usize,
     /// Statistics of every iteration.
     pub iterations: Vec<IterationStats>,
     /// Whether the stop condition was met before `max_iterations`.
@@ -402,6 +434,8 @@ pub fn fit_polygons_from(
         mean_distance: None,
         median_distance: None,
         compression_ratio: None,
+        noise_level: None,
+        pruned: 0,
         iterations: Vec::new(),
         converged: false,
     };
@@ -410,8 +444,15 @@ pub fn fit_polygons_from(
         result.converged = true;
         return Ok(result);
     }
-    let iterated = iterate(points, initial, params, &mut result);
-    let (segments, polylines) = finish(points, iterated, params);
+    result.noise_level = params
+        .measure_noise
+        .then(|| noise::noise_level(points))
+        .flatten()
+        .map(|level| level.sigma);
+    let floor = result.noise_level.unwrap_or(0.0).max(params.sigma_min);
+    let iterated = iterate(points, initial, params, floor, &mut result);
+    let (segments, polylines, pruned) = finish(points, iterated, params);
+    result.pruned = pruned;
     result.polylines = polylines;
     summarize(points, segments, &mut result);
     Ok(result)
@@ -430,6 +471,7 @@ fn iterate(
     points: &[Vector2<f64>],
     initial: Vec<Segment>,
     params: &EmPolygonParams,
+    floor: f64,
     result: &mut PolygonMap,
 ) -> Iterated {
     let mut segments = initial;
@@ -437,15 +479,15 @@ fn iterate(
     let mut previous_mean: Option<f64> = None;
     let mut r = params.r_min;
     let mut previous_sigma = f64::INFINITY;
-    let mut last_sigma = params.sigma_min;
+    let mut last_sigma = floor;
     for _ in 0..params.max_iterations {
         let sigma = robust_spread(&distances)
             .min(params.sigma_shrink * previous_sigma)
-            .max(params.sigma_min);
+            .max(floor);
         let annealing = sigma < previous_sigma * (1.0 - 1e-9) && previous_sigma.is_finite();
         previous_sigma = sigma;
         last_sigma = sigma;
-        let (next, stats, next_distances) = iteration(points, &segments, sigma, params);
+        let (next, stats, next_distances) = iteration(points, &segments, sigma, floor, params);
         segments = next;
         distances = next_distances;
         r = stats.r;
@@ -477,6 +519,7 @@ fn iteration(
     points: &[Vector2<f64>],
     segments: &[Segment],
     sigma: f64,
+    floor: f64,
     params: &EmPolygonParams,
 ) -> (Vec<Segment>, IterationStats, Vec<f64>) {
     let segments = emsf::emsf_step(points, segments, sigma, params.outlier_sigmas).0;
@@ -499,7 +542,7 @@ fn iteration(
     let segments = emsf::emsf_step(points, &split, sigma, params.outlier_sigmas).0;
     let scales = merge::MergeScales {
         angle: params.merge_angle_deg.to_radians(),
-        sigma: params.sigma_min,
+        sigma: floor,
         r,
     };
     let (segments, merges) = merge::merge_all(segments, &scales);
@@ -534,7 +577,7 @@ fn finish(
     points: &[Vector2<f64>],
     iterated: Iterated,
     params: &EmPolygonParams,
-) -> (Vec<Segment>, Vec<Polyline>) {
+) -> (Vec<Segment>, Vec<Polyline>, usize) {
     // The last EMSF trims each segment to all of its support set, which can stretch it over
     // a gap to a few stray points: a last split removes the subsegments whose square holds
     // no point at all.
@@ -542,7 +585,12 @@ fn finish(
     // pulled off their wall by far points lie on it again.
     let Iterated { segments, r, sigma } = iterated;
     let segments = emsf::emsf_step(points, &segments, sigma, Some(3.0)).0;
-    let mut segments = split::split(points, &segments, r, |_| 0.0).0;
+    let segments = split::split(points, &segments, r, |_| 0.0).0;
+    let (mut segments, pruned) = if params.select_segments {
+        select::prune(points, segments, 3.0 * sigma)
+    } else {
+        (segments, 0)
+    };
     // Joining ends can collapse a short segment between two joints: such segments are
     // dropped and the ordering redone.
     let join = params.join_scale * r;
@@ -555,7 +603,7 @@ fn finish(
             .map(|(j, s)| j.length() < (0.25 * s.length()).max(MIN_LENGTH))
             .collect();
         if !collapsed.contains(&true) {
-            return (joined, polylines);
+            return (joined, polylines, pruned);
         }
         segments = segments
             .into_iter()

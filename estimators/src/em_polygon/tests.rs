@@ -158,6 +158,15 @@ fn a_room_with_a_doorway_becomes_five_walls_in_one_polyline() {
     let median_distance = map.median_distance.unwrap();
     assert!(median_distance < 0.015, "median distance {median_distance}");
     assert_eq!(map.compression_ratio, Some(points.len() as f64 / 10.0));
+    // The walls' noise (uniform in +-2 cm: deviation 1.15 cm) is measured from the points,
+    // and the annealed sigma ends there.
+    let noise = map.noise_level.unwrap();
+    assert!(
+        (noise / (0.02 / 3f64.sqrt()) - 1.0).abs() < 0.15,
+        "noise {noise}"
+    );
+    let last = map.iterations.last().unwrap();
+    assert_eq!(last.sigma, noise.max(robust().sigma_min));
 }
 
 #[test]

@@ -109,6 +109,10 @@ struct Metrics {
     median_point_to_segment_m: Option<f64>,
     /// Points per segment endpoint (points : 2 segments).
     compression_ratio: Option<f64>,
+    /// Noise of the points about their walls measured from the data, m.
+    noise_level_m: Option<f64>,
+    /// Segments removed by the model selection after the fit.
+    pruned_segments: usize,
     iterations: usize,
     converged: bool,
     /// Seconds of the fit alone.
@@ -173,6 +177,8 @@ impl PostProcess for EmPolygon {
             mean_point_to_segment_m: fit.mean_distance,
             median_point_to_segment_m: fit.median_distance,
             compression_ratio: fit.compression_ratio,
+            noise_level_m: fit.noise_level,
+            pruned_segments: fit.pruned,
             iterations: fit.iterations.len(),
             converged: fit.converged,
             fit_time_s,

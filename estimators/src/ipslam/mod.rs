@@ -15,7 +15,19 @@
 //!    matched pairs merge by incremental PCA (eqs. 15-16) unless the merged cluster would be
 //!    thick (non-principal deviation above `new_cluster_max_sigma`);
 //! 4. unmatched new clusters with enough points and a small non-principal variance join the
-//!    map; unmatched old ones stay.
+//!    map; unmatched old ones stay;
+//! 5. (an addition, `merge_map_clusters`, on by default) each map cluster that step 3 or 4
+//!    changed is merged with another map cluster near the scan that lies on the same line
+//!    (principal directions within `map_merge_angle_deg`, each centre within
+//!    `max_normal_distance` of the other's line, the segments overlapping or within
+//!    `max_normal_distance` of each other), the thinnest such union first, again and again
+//!    while the union finds a partner. The union is exact from the two clusters' moments
+//!    (count, centre, sample covariance: [`ppca::combine`]) and is refused when thick
+//!    (non-principal deviation above `new_cluster_max_sigma`). The paper merges map clusters
+//!    with the scan's only (Table I, step 6c), so two clusters of one wall that grew apart
+//!    (a corridor seen on the way out and again on the way back, before the first sighting's
+//!    cluster reached the second's) stay two forever; its stated aim is a compact map of a few
+//!    lines per wall, which this step keeps.
 //!
 //! Then the particles are resampled (systematic) when the effective sample size is below the
 //! threshold (the paper resamples at every step: threshold 1). The particles sample their
@@ -125,6 +137,12 @@ pub struct IpslamParams {
     pub match_gate: f64,
     /// Scan matching: deviation of a point from its cluster's line, m.
     pub match_point_sigma: f64,
+    /// After a scan, merge the map clusters it changed with other map clusters of the same
+    /// line (step 5 of the module documentation; an addition: the paper merges map clusters
+    /// with the scan's only, so two clusters of one wall that grew apart never fuse).
+    pub merge_map_clusters: bool,
+    /// ... whose principal directions are within this angle, degrees.
+    pub map_merge_angle_deg: f64,
 }
 
 impl Default for IpslamParams {
@@ -148,6 +166,8 @@ impl Default for IpslamParams {
             proposal: IpslamProposal::Motion,
             match_gate: 0.3,
             match_point_sigma: 0.05,
+            merge_map_clusters: true,
+            map_merge_angle_deg: 15.0,
         }
     }
 }
@@ -205,6 +225,10 @@ impl IpslamParams {
             (positive(self.likelihood_scale), "likelihood_scale > 0"),
             (positive(self.match_gate), "match_gate > 0"),
             (positive(self.match_point_sigma), "match_point_sigma > 0"),
+            (
+                positive(self.map_merge_angle_deg) && self.map_merge_angle_deg <= 90.0,
+                "map_merge_angle_deg in (0, 90]",
+            ),
         ];
         first_failure("IPSLAM", &checks)
     }

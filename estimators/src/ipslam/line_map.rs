@@ -14,7 +14,18 @@ use crate::particles::Particle;
 use crate::particles::pvec::PVec;
 
 /// A particle's map of line clusters.
-pub(super) type LineMap = PVec<Cluster>;
+pub(super) type LineMap = PVec<MapCluster>;
+
+/// A cluster of a particle's map with its sightings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct MapCluster {
+    /// The PPCA cluster.
+    pub cluster: Cluster,
+    /// Scans whose clusters it holds (a union of two map clusters adds theirs).
+    pub sightings: u32,
+    /// The last of those scans (the filter's count of processed scans).
+    pub last_seen: usize,
+}
 
 /// What one particle did with one scan.
 #[derive(Default)]
@@ -24,6 +35,8 @@ pub(super) struct ScanOutcome {
     pub added: usize,
     /// Merges of two map clusters (step 5).
     pub fused: usize,
+    /// Unconfirmed map clusters pruned (step 6).
+    pub pruned: usize,
 }
 
 /// The `scan-match` proposal for one particle: the match of the scan to its own clusters
@@ -40,7 +53,7 @@ pub(super) fn match_to_own_map<P: RobotPose>(
     let start = planar(&particle.pose.world_from_sensor(robot_from_sensor));
     let settings = params.matching();
     let clusters = matching::reachable(
-        particle.map.iter().map(|(_, k)| k),
+        particle.map.iter().map(|(_, k)| &k.cluster),
         &start.1,
         params.max_range + settings.gate + settings.end_margin,
     );
@@ -66,15 +79,17 @@ pub(super) fn match_to_own_map<P: RobotPose>(
     }
 }
 
-/// Steps 1-4 of the module documentation of [`super`] for one particle: the scan's weight
-/// against the map before the scan, then its clusters merged into corresponding ones or
-/// added.
+/// Steps 1-6 of the module documentation of [`super`] for one particle and the scan number
+/// `scan`: the scan's weight against the map before the scan, then its clusters merged into
+/// corresponding ones or added, then the map clusters of one line merged and the unconfirmed
+/// ones pruned (when configured).
 pub(super) fn process<P: RobotPose>(
     particle: &mut Particle<P, LineMap>,
     params: &IpslamParams,
     robot_from_sensor: &Pose3,
     scan_clusters: &[(Cluster, Vec<Vector2<f64>>)],
     points: &[Vector2<f64>],
+    scan: usize,
 ) -> ScanOutcome {
     let (heading, translation) = planar(&particle.pose.world_from_sensor(robot_from_sensor));
     let (s, c) = heading.sin_cos();
@@ -84,9 +99,10 @@ pub(super) fn process<P: RobotPose>(
         .map
         .iter()
         .filter(|(_, k)| {
+            let k = &k.cluster;
             (k.mean - translation).norm() <= params.max_range + 3.0 * k.principal_variance.sqrt()
         })
-        .map(|(slot, k)| (slot, *k))
+        .map(|(slot, k)| (slot, k.cluster))
         .collect();
     let mut outcome = ScanOutcome {
         log_likelihood: scan_log_likelihood(&nearby, points, &place, params),
@@ -120,7 +136,15 @@ pub(super) fn process<P: RobotPose>(
         }
         old_used[i] = true;
         new_used[j] = true;
-        particle.map.set(slot, Some(merged));
+        let sightings = particle.map.get(slot).map_or(0, |k| k.sightings);
+        particle.map.set(
+            slot,
+            Some(MapCluster {
+                cluster: merged,
+                sightings: sightings.saturating_add(1),
+                last_seen: scan,
+            }),
+        );
         near[i].1 = merged;
         changed.push(slot);
         outcome.merged += 1;
@@ -130,28 +154,57 @@ pub(super) fn process<P: RobotPose>(
             && new.count >= params.new_cluster_min_points
             && new.sigma2.sqrt() <= params.new_cluster_max_sigma
         {
-            let slot = particle.map.push(new);
+            let slot = particle.map.push(MapCluster {
+                cluster: new,
+                sightings: 1,
+                last_seen: scan,
+            });
             near.push((slot, new));
             changed.push(slot);
             outcome.added += 1;
         }
     }
     if params.merge_map_clusters {
-        outcome.fused = fuse(&mut particle.map, near, changed, params);
+        outcome.fused = fuse(&mut particle.map, &mut near, changed, params);
+    }
+    if params.prune_unconfirmed_after > 0 {
+        outcome.pruned = prune(
+            &mut particle.map,
+            &near,
+            scan,
+            params.prune_unconfirmed_after,
+        );
     }
     outcome
 }
 
+/// Step 6 of the module documentation of [`super`] (an addition): the clusters of `near`
+/// (slots of `map`) seen in one scan only, `after` or more scans ago, become holes. Returns
+/// how many.
+fn prune(map: &mut LineMap, near: &[(usize, Cluster)], scan: usize, after: usize) -> usize {
+    let mut pruned = 0;
+    for (slot, _) in near {
+        let stale = map
+            .get(*slot)
+            .is_some_and(|k| k.sightings <= 1 && scan.saturating_sub(k.last_seen) >= after);
+        if stale {
+            map.set(*slot, None);
+            pruned += 1;
+        }
+    }
+    pruned
+}
+
 /// Step 5 of the module documentation of [`super`] (an addition): each cluster in `changed`
 /// (slots of `map`) is merged with the other cluster of `near` (the map's clusters near the
-/// scan, with their current values) that lies on the same line ([`same_line`]) and gives the
-/// thinnest union, by the exact merge of their moments ([`ppca::combine`]); a merge whose
-/// non-principal deviation is above `new_cluster_max_sigma` is refused. The union keeps the
-/// lower slot, the other slot becomes a hole, and the union is tested again. Returns the
-/// number of merges.
+/// scan, with their current values; updated) that lies on the same line ([`same_line`]) and
+/// gives the thinnest union, by the exact merge of their moments ([`ppca::combine`]); a merge
+/// whose non-principal deviation is above `new_cluster_max_sigma` is refused. The union keeps
+/// the lower slot with the sum of the sightings, the other slot becomes a hole, and the union
+/// is tested again. Returns the number of merges.
 pub(super) fn fuse(
     map: &mut LineMap,
-    mut near: Vec<(usize, Cluster)>,
+    near: &mut Vec<(usize, Cluster)>,
     mut changed: Vec<usize>,
     params: &IpslamParams,
 ) -> usize {
@@ -182,7 +235,20 @@ pub(super) fn fuse(
             continue;
         };
         let (kept, dropped) = (slot.min(near[b_index].0), slot.max(near[b_index].0));
-        map.set(kept, Some(union));
+        let (sightings, last_seen) = [kept, dropped]
+            .iter()
+            .filter_map(|s| map.get(*s))
+            .fold((0u32, 0usize), |(n, t), k| {
+                (n.saturating_add(k.sightings), t.max(k.last_seen))
+            });
+        map.set(
+            kept,
+            Some(MapCluster {
+                cluster: union,
+                sightings,
+                last_seen,
+            }),
+        );
         map.set(dropped, None);
         near.retain(|(s, _)| *s != dropped);
         if let Some(entry) = near.iter_mut().find(|(s, _)| *s == kept) {
@@ -298,13 +364,23 @@ mod tests {
     fn fused(walls: &[Vec<Vector2<f64>>], params: &IpslamParams) -> (Vec<Cluster>, usize) {
         let mut map = LineMap::default();
         let mut near = Vec::new();
-        for points in walls {
+        for (scan, points) in walls.iter().enumerate() {
             let cluster = Cluster::fit(points).unwrap();
-            near.push((map.push(cluster), cluster));
+            let slot = map.push(MapCluster {
+                cluster,
+                sightings: 1,
+                last_seen: scan,
+            });
+            near.push((slot, cluster));
         }
         let last = near.len() - 1;
-        let merges = fuse(&mut map, near, vec![last], params);
-        (map.iter().map(|(_, c)| *c).collect(), merges)
+        let merges = fuse(&mut map, &mut near, vec![last], params);
+        let clusters: Vec<Cluster> = map.iter().map(|(_, c)| c.cluster).collect();
+        // The map and the list of clusters near the scan agree.
+        assert_eq!(near.iter().map(|(_, c)| *c).collect::<Vec<_>>(), clusters);
+        let sightings: u32 = map.iter().map(|(_, c)| c.sightings).sum();
+        assert_eq!(sightings as usize, walls.len());
+        (clusters, merges)
     }
 
     fn v(x: f64, y: f64) -> Vector2<f64> {
@@ -391,5 +467,27 @@ mod tests {
         assert_eq!(clusters.len(), 1);
         let (clusters, _) = fused(&[along_x, up], &loose);
         assert_eq!(clusters.len(), 2);
+    }
+
+    #[test]
+    fn clusters_of_one_scan_are_pruned_once_stale() {
+        let cluster = Cluster::fit(&wall(v(0.0, 0.0), v(2.0, 0.0), 40, 0.01)).unwrap();
+        let mut map = LineMap::default();
+        let mut near = Vec::new();
+        // Seen once at scan 0, twice with the last at scan 1, once at scan 3.
+        for (sightings, last_seen) in [(1, 0), (2, 1), (1, 3)] {
+            let slot = map.push(MapCluster {
+                cluster,
+                sightings,
+                last_seen,
+            });
+            near.push((slot, cluster));
+        }
+        assert_eq!(prune(&mut map, &near, 4, 5), 0);
+        assert_eq!(prune(&mut map, &near, 5, 5), 1);
+        let left: Vec<usize> = map.iter().map(|(slot, _)| slot).collect();
+        assert_eq!(left, vec![1, 2]);
+        assert_eq!(prune(&mut map, &near, 100, 5), 1);
+        assert_eq!(map.iter().count(), 1);
     }
 }

@@ -28,6 +28,11 @@
 //!    (a corridor seen on the way out and again on the way back, before the first sighting's
 //!    cluster reached the second's) stay two forever; its stated aim is a compact map of a few
 //!    lines per wall, which this step keeps.
+//! 6. (an addition, `prune_unconfirmed_after`, off by default) a map cluster near the scan that
+//!    holds the points of a single scan (never matched or merged since) is removed once that
+//!    many scans have been processed after it: clutter, people and glimpses through doors. The
+//!    paper keeps every unmatched old cluster unchanged (Table I, step 6c-iv), so this is off
+//!    unless asked for.
 //!
 //! Then the particles are resampled (systematic) when the effective sample size is below the
 //! threshold (the paper resamples at every step: threshold 1). The particles sample their
@@ -143,6 +148,10 @@ pub struct IpslamParams {
     pub merge_map_clusters: bool,
     /// ... whose principal directions are within this angle, degrees.
     pub map_merge_angle_deg: f64,
+    /// Remove a map cluster near the scan that holds a single scan's points once this many
+    /// scans have been processed since (step 6 of the module documentation; an addition, not
+    /// in the paper; 0: never, the paper).
+    pub prune_unconfirmed_after: usize,
 }
 
 impl Default for IpslamParams {
@@ -168,6 +177,7 @@ impl Default for IpslamParams {
             match_point_sigma: 0.05,
             merge_map_clusters: true,
             map_merge_angle_deg: 15.0,
+            prune_unconfirmed_after: 0,
         }
     }
 }
@@ -315,7 +325,7 @@ impl<P: RobotPose> Ipslam<P> {
             .best_particle()
             .map
             .iter()
-            .map(|(_, c)| *c)
+            .map(|(_, c)| c.cluster)
             .collect()
     }
 
@@ -377,6 +387,7 @@ impl<P: RobotPose> Ipslam<P> {
         let scan_match = params.proposal == IpslamProposal::ScanMatch;
         let seed = self.set.seed();
         let draw = if scan_match { self.set.next_draw() } else { 0 };
+        let scans_processed = self.scans_processed;
         self.set
             .particles
             .par_iter_mut()
@@ -393,7 +404,14 @@ impl<P: RobotPose> Ipslam<P> {
                         &mut rng,
                     );
                 }
-                process(particle, params, robot_from_sensor, &scan_clusters, points)
+                process(
+                    particle,
+                    params,
+                    robot_from_sensor,
+                    &scan_clusters,
+                    points,
+                    scans_processed,
+                )
             })
             .collect()
     }
@@ -481,7 +499,7 @@ impl<P: RobotPose> Estimator<P> for Ipslam<P> {
         self.snapshot.get_or_init(|| {
             let mut map = FeatureMap::new();
             for (_, cluster) in self.set.best_particle().map.iter() {
-                if let Ok(feature) = self.types.cluster_feature(cluster) {
+                if let Ok(feature) = self.types.cluster_feature(&cluster.cluster) {
                     // A new feature is unshared: insertion succeeds.
                     let _ = map.insert(feature);
                 }

@@ -209,6 +209,9 @@ pub(super) fn fuse(
     params: &IpslamParams,
 ) -> usize {
     let cos_limit = params.map_merge_angle_deg.to_radians().cos();
+    let max_sigma = params
+        .map_merge_max_sigma
+        .unwrap_or(params.new_cluster_max_sigma);
     let mut fused = 0;
     while let Some(slot) = changed.pop() {
         // A slot merged away earlier is no longer in `near`.
@@ -224,7 +227,7 @@ pub(super) fn fuse(
             let Some(union) = ppca::combine(&a, b) else {
                 continue;
             };
-            if union.sigma2.sqrt() > params.new_cluster_max_sigma {
+            if union.sigma2.sqrt() > max_sigma {
                 continue;
             }
             if best.is_none_or(|(_, kept)| union.sigma2 < kept.sigma2) {
@@ -432,6 +435,15 @@ mod tests {
             let (clusters, _) = fused(&[first.clone(), second], &params);
             assert_eq!(clusters.len(), expected, "offset {offset} m");
         }
+        // A union thicker than `map_merge_max_sigma` is refused: the sightings 2 cm apart
+        // make a union about 1.4 cm thick.
+        let thin = IpslamParams {
+            map_merge_max_sigma: Some(0.01),
+            ..params.clone()
+        };
+        let second = wall(v(1.0, 0.02), v(6.0, 0.02), 200, 0.01);
+        let (clusters, _) = fused(&[first.clone(), second], &thin);
+        assert_eq!(clusters.len(), 2);
         // Collinear but 1 m apart along the line: no overlap, no fusion.
         let beyond = wall(v(6.0, 0.0), v(9.0, 0.0), 120, 0.01);
         let (clusters, _) = fused(&[first, beyond], &params);

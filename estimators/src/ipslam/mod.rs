@@ -23,7 +23,8 @@
 //!    `max_normal_distance` of each other), the thinnest such union first, again and again
 //!    while the union finds a partner. The union is exact from the two clusters' moments
 //!    (count, centre, sample covariance: [`ppca::combine`]) and is refused when thick
-//!    (non-principal deviation above `new_cluster_max_sigma`). The paper merges map clusters
+//!    (non-principal deviation above `map_merge_max_sigma`, by default
+//!    `new_cluster_max_sigma`). The paper merges map clusters
 //!    with the scan's only (Table I, step 6c), so two clusters of one wall that grew apart
 //!    (a corridor seen on the way out and again on the way back, before the first sighting's
 //!    cluster reached the second's) stay two forever; its stated aim is a compact map of a few
@@ -148,6 +149,9 @@ pub struct IpslamParams {
     pub merge_map_clusters: bool,
     /// ... whose principal directions are within this angle, degrees.
     pub map_merge_angle_deg: f64,
+    /// ... and whose union has a non-principal deviation at most this, m (`None`:
+    /// `new_cluster_max_sigma`).
+    pub map_merge_max_sigma: Option<f64>,
     /// Remove a map cluster near the scan that holds a single scan's points once this many
     /// scans have been processed since (step 6 of the module documentation; an addition, not
     /// in the paper; 0: never, the paper).
@@ -177,6 +181,7 @@ impl Default for IpslamParams {
             match_point_sigma: 0.05,
             merge_map_clusters: true,
             map_merge_angle_deg: 15.0,
+            map_merge_max_sigma: None,
             prune_unconfirmed_after: 0,
         }
     }
@@ -235,6 +240,10 @@ impl IpslamParams {
             (positive(self.likelihood_scale), "likelihood_scale > 0"),
             (positive(self.match_gate), "match_gate > 0"),
             (positive(self.match_point_sigma), "match_point_sigma > 0"),
+            (
+                self.map_merge_max_sigma.is_none_or(positive),
+                "map_merge_max_sigma > 0",
+            ),
             (
                 positive(self.map_merge_angle_deg) && self.map_merge_angle_deg <= 90.0,
                 "map_merge_angle_deg in (0, 90]",

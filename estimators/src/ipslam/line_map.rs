@@ -199,7 +199,8 @@ fn prune(map: &mut LineMap, near: &[(usize, Cluster)], scan: usize, after: usize
 /// (slots of `map`) is merged with the other cluster of `near` (the map's clusters near the
 /// scan, with their current values; updated) that lies on the same line ([`same_line`]) and
 /// gives the thinnest union, by the exact merge of their moments ([`ppca::combine`]); a merge
-/// whose non-principal deviation is above `new_cluster_max_sigma` is refused. The union keeps
+/// whose non-principal deviation is above `map_merge_max_sigma` (by default
+/// `new_cluster_max_sigma`) is refused. The union keeps
 /// the lower slot with the sum of the sightings, the other slot becomes a hole, and the union
 /// is tested again. Returns the number of merges.
 pub(super) fn fuse(

@@ -15,7 +15,25 @@
 //!    matched pairs merge by incremental PCA (eqs. 15-16) unless the merged cluster would be
 //!    thick (non-principal deviation above `new_cluster_max_sigma`);
 //! 4. unmatched new clusters with enough points and a small non-principal variance join the
-//!    map; unmatched old ones stay.
+//!    map; unmatched old ones stay;
+//! 5. (an addition, `merge_map_clusters`, on by default) each map cluster that step 3 or 4
+//!    changed is merged with another map cluster near the scan that lies on the same line
+//!    (principal directions within `map_merge_angle_deg`, each centre within
+//!    `max_normal_distance` of the other's line, the segments overlapping or within
+//!    `max_normal_distance` of each other), the thinnest such union first, again and again
+//!    while the union finds a partner. The union is exact from the two clusters' moments
+//!    (count, centre, sample covariance: [`ppca::combine`]) and is refused when thick
+//!    (non-principal deviation above `map_merge_max_sigma`, by default
+//!    `new_cluster_max_sigma`). The paper merges map clusters
+//!    with the scan's only (Table I, step 6c), so two clusters of one wall that grew apart
+//!    (a corridor seen on the way out and again on the way back, before the first sighting's
+//!    cluster reached the second's) stay two forever; its stated aim is a compact map of a few
+//!    lines per wall, which this step keeps.
+//! 6. (an addition, `prune_unconfirmed_after`, off by default) a map cluster near the scan that
+//!    holds the points of a single scan (never matched or merged since) is removed once that
+//!    many scans have been processed after it: clutter, people and glimpses through doors. The
+//!    paper keeps every unmatched old cluster unchanged (Table I, step 6c-iv), so this is off
+//!    unless asked for.
 //!
 //! Then the particles are resampled (systematic) when the effective sample size is below the
 //! threshold (the paper resamples at every step: threshold 1). The particles sample their
@@ -125,6 +143,19 @@ pub struct IpslamParams {
     pub match_gate: f64,
     /// Scan matching: deviation of a point from its cluster's line, m.
     pub match_point_sigma: f64,
+    /// After a scan, merge the map clusters it changed with other map clusters of the same
+    /// line (step 5 of the module documentation; an addition: the paper merges map clusters
+    /// with the scan's only, so two clusters of one wall that grew apart never fuse).
+    pub merge_map_clusters: bool,
+    /// ... whose principal directions are within this angle, degrees.
+    pub map_merge_angle_deg: f64,
+    /// ... and whose union has a non-principal deviation at most this, m (`None`:
+    /// `new_cluster_max_sigma`).
+    pub map_merge_max_sigma: Option<f64>,
+    /// Remove a map cluster near the scan that holds a single scan's points once this many
+    /// scans have been processed since (step 6 of the module documentation; an addition, not
+    /// in the paper; 0: never, the paper).
+    pub prune_unconfirmed_after: usize,
 }
 
 impl Default for IpslamParams {
@@ -148,6 +179,10 @@ impl Default for IpslamParams {
             proposal: IpslamProposal::Motion,
             match_gate: 0.3,
             match_point_sigma: 0.05,
+            merge_map_clusters: true,
+            map_merge_angle_deg: 15.0,
+            map_merge_max_sigma: None,
+            prune_unconfirmed_after: 0,
         }
     }
 }
@@ -205,6 +240,14 @@ impl IpslamParams {
             (positive(self.likelihood_scale), "likelihood_scale > 0"),
             (positive(self.match_gate), "match_gate > 0"),
             (positive(self.match_point_sigma), "match_point_sigma > 0"),
+            (
+                self.map_merge_max_sigma.is_none_or(positive),
+                "map_merge_max_sigma > 0",
+            ),
+            (
+                positive(self.map_merge_angle_deg) && self.map_merge_angle_deg <= 90.0,
+                "map_merge_angle_deg in (0, 90]",
+            ),
         ];
         first_failure("IPSLAM", &checks)
     }
@@ -291,7 +334,7 @@ impl<P: RobotPose> Ipslam<P> {
             .best_particle()
             .map
             .iter()
-            .map(|(_, c)| *c)
+            .map(|(_, c)| c.cluster)
             .collect()
     }
 
@@ -353,6 +396,7 @@ impl<P: RobotPose> Ipslam<P> {
         let scan_match = params.proposal == IpslamProposal::ScanMatch;
         let seed = self.set.seed();
         let draw = if scan_match { self.set.next_draw() } else { 0 };
+        let scans_processed = self.scans_processed;
         self.set
             .particles
             .par_iter_mut()
@@ -369,7 +413,14 @@ impl<P: RobotPose> Ipslam<P> {
                         &mut rng,
                     );
                 }
-                process(particle, params, robot_from_sensor, &scan_clusters, points)
+                process(
+                    particle,
+                    params,
+                    robot_from_sensor,
+                    &scan_clusters,
+                    points,
+                    scans_processed,
+                )
             })
             .collect()
     }
@@ -457,7 +508,7 @@ impl<P: RobotPose> Estimator<P> for Ipslam<P> {
         self.snapshot.get_or_init(|| {
             let mut map = FeatureMap::new();
             for (_, cluster) in self.set.best_particle().map.iter() {
-                if let Ok(feature) = self.types.cluster_feature(cluster) {
+                if let Ok(feature) = self.types.cluster_feature(&cluster.cluster) {
                     // A new feature is unshared: insertion succeeds.
                     let _ = map.insert(feature);
                 }

@@ -239,6 +239,48 @@ pub fn merge(old: &Cluster, new: &Cluster, new_points: &[Vector2<f64>]) -> Clust
     }
 }
 
+/// Merges two clusters from their moments alone: the union's count, its centre (the
+/// count-weighted average of the centres) and its sample covariance, pooled exactly from each
+/// cluster's sample covariance and the offset of its centre, `S = sum_i n_i / n (S_i +
+/// (mu_i - mu)(mu_i - mu)^T)`, then decomposed as in [`Cluster::fit`]. For two clusters fitted
+/// to two sets of points this is the fit of the union; for a cluster made by [`merge`] it is
+/// exact up to that merge's approximation of the principal direction. This is what the
+/// incremental PCA of eqs. 15-16 approximates when both sides are summarized, and is used for
+/// the merge of two map clusters (an addition: the paper merges map clusters with new ones
+/// only). `None` when neither cluster has a point or the covariance has no eigenvector.
+///
+/// ```
+/// use slam_core::nalgebra::Vector2;
+/// use slam_estimators::ipslam::ppca::{Cluster, combine};
+/// let points: Vec<Vector2<f64>> = (0..40).map(|k| Vector2::new(0.1 * k as f64, 0.01 * (k % 3) as f64)).collect();
+/// let (a, b) = (Cluster::fit(&points[..25]).unwrap(), Cluster::fit(&points[25..]).unwrap());
+/// let all = Cluster::fit(&points).unwrap();
+/// let union = combine(&a, &b).unwrap();
+/// assert_eq!(union.count, 40);
+/// assert!((union.mean - all.mean).norm() < 1e-12);
+/// assert!((union.principal_variance - all.principal_variance).abs() < 1e-12);
+/// assert!((union.sigma2 - all.sigma2).abs() < 1e-12);
+/// ```
+pub fn combine(a: &Cluster, b: &Cluster) -> Option<Cluster> {
+    let count = a.count.checked_add(b.count)?;
+    if count == 0 {
+        return None;
+    }
+    let (n_a, n_b, total) = (a.count as f64, b.count as f64, count as f64);
+    let mean = (a.mean * n_a + b.mean * n_b) / total;
+    let (offset_a, offset_b) = (a.mean - mean, b.mean - mean);
+    let pooled = (a.sample_covariance() + offset_a * offset_a.transpose()) * (n_a / total)
+        + (b.sample_covariance() + offset_b * offset_b.transpose()) * (n_b / total);
+    let (principal_variance, sigma2, direction) = principal(&pooled)?;
+    Some(Cluster {
+        mean,
+        direction,
+        principal_variance,
+        sigma2,
+        count,
+    })
+}
+
 /// Settings of the clustering of one scan.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GMeansParams {

@@ -199,7 +199,7 @@ fn prune(map: &mut LineMap, near: &[(usize, Cluster)], scan: usize, after: usize
 /// (slots of `map`) is merged with the other cluster of `near` (the map's clusters near the
 /// scan, with their current values; updated) that lies on the same line ([`same_line`]) and
 /// gives the thinnest union, by the exact merge of their moments ([`ppca::combine`]); a merge
-/// whose non-principal deviation is above `map_merge_max_sigma` (by default
+/// whose non-principal deviation is above `map_merge_max_sigma` (or, when that is `None`,
 /// `new_cluster_max_sigma`) is refused. The union keeps
 /// the lower slot with the sum of the sightings, the other slot becomes a hole, and the union
 /// is tested again. Returns the number of merges.
@@ -473,7 +473,7 @@ mod tests {
         // With the thickness limit raised the shallow corner fuses (the limit is what
         // refuses it), the L corner still not (the angle).
         let loose = IpslamParams {
-            new_cluster_max_sigma: 0.5,
+            map_merge_max_sigma: Some(0.5),
             ..params
         };
         let (clusters, _) = fused(&[along_x.clone(), bent], &loose);

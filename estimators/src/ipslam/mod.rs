@@ -23,7 +23,7 @@
 //!    `max_normal_distance` of each other), the thinnest such union first, again and again
 //!    while the union finds a partner. The union is exact from the two clusters' moments
 //!    (count, centre, sample covariance: [`ppca::combine`]) and is refused when thick
-//!    (non-principal deviation above `map_merge_max_sigma`, by default
+//!    (non-principal deviation above `map_merge_max_sigma`, 3 cm by default; `None`:
 //!    `new_cluster_max_sigma`). The paper merges map clusters
 //!    with the scan's only (Table I, step 6c), so two clusters of one wall that grew apart
 //!    (a corridor seen on the way out and again on the way back, before the first sighting's
@@ -150,7 +150,8 @@ pub struct IpslamParams {
     /// ... whose principal directions are within this angle, degrees.
     pub map_merge_angle_deg: f64,
     /// ... and whose union has a non-principal deviation at most this, m (`None`:
-    /// `new_cluster_max_sigma`).
+    /// `new_cluster_max_sigma`). The default, 3 cm, kept the paths best on the Intel lab;
+    /// 5 cm merged more but thickened the clusters and flattened the weights (BENCHMARKS.md).
     pub map_merge_max_sigma: Option<f64>,
     /// Remove a map cluster near the scan that holds a single scan's points once this many
     /// scans have been processed since (step 6 of the module documentation; an addition, not
@@ -181,7 +182,7 @@ impl Default for IpslamParams {
             match_point_sigma: 0.05,
             merge_map_clusters: true,
             map_merge_angle_deg: 15.0,
-            map_merge_max_sigma: None,
+            map_merge_max_sigma: Some(0.03),
             prune_unconfirmed_after: 0,
         }
     }

@@ -11,7 +11,8 @@
 //! 2. LSS (section II-C): cut the segments into subsegments of length `2r`, remove those
 //!    whose square holds `<= C` points, keep the connected remainders;
 //! 3. EMSF again;
-//! 4. merge (section III) by the perceptual-grouping cost `2 parC + 1/4 colC + 1/2 proxC`,
+//! 4. merge (section III) by the perceptual-grouping cost `2 parC + 1/4 colC + 1/2 proxC`;
+//! 5. model selection (`select_segments`, an addition to the paper, below),
 //!
 //! until the mean point-to-nearest-segment distance is stable. Then a last EMSF whose M-step
 //! ignores points farther than `3 sigma` puts lines pulled off their wall by far points back
@@ -49,9 +50,11 @@
 //! distance to their nearest segment would grow without it. A segment is removed when its
 //! saving is below the total distance over the number of other segments, which lowers the
 //! product mean distance x segments (a relative change of either counts the same), cheapest
-//! first, in rounds, until none qualifies. The distances of points that the full fit leaves
-//! farther than `3 sigma` from every segment (returns in open space, clutter) are left out of
-//! the total, or their large, fixed share would make every segment look cheap.
+//! first, in rounds, until none qualifies. The distances of points that the model before the
+//! selection leaves farther than `3 sigma` from every segment (returns in open space,
+//! clutter) are left out of the total, or their large, fixed share would make every segment
+//! look cheap. It runs in every iteration (so that the split's new pieces must earn their
+//! place each time and the segment count settles) and once more after the final split.
 //!
 //! The E-step is not a dense points x segments loop: a grid over the segments gives each
 //! point its candidate segments (those within `sqrt(d_min^2 + (4 sigma)^2)`; farther ones
@@ -163,15 +166,16 @@ pub struct EmPolygonParams {
     /// Angle between two segments that alone gives the merge cost 1 (`2 parC = 1`), degrees.
     /// Smaller values merge less.
     pub merge_angle_deg: f64,
-    /// Largest number of iterations (EMSF, LSS, EMSF, merge).
+    /// Largest number of iterations (EMSF, LSS, EMSF, merge, selection).
     pub max_iterations: usize,
     /// Stop when the mean point-to-nearest-segment distance changes by less than this
     /// fraction between two iterations.
     pub tolerance: f64,
     /// Segment ends closer than `join_scale * r` are joined into polylines.
     pub join_scale: f64,
-    /// After the fit, remove the segments that save less distance than the distance budget
-    /// of one segment (they lower mean distance x segments; an addition to the paper).
+    /// At every iteration and after the fit, remove the segments that save less distance
+    /// than the distance budget of one segment (they lower mean distance x segments; an
+    /// addition to the paper).
     pub select_segments: bool,
 }
 
@@ -252,7 +256,7 @@ impl EmPolygonParams {
     }
 }
 
-/// What one iteration (EMSF, LSS, EMSF, merge) did.
+/// What one iteration (EMSF, LSS, EMSF, merge, selection) did.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct IterationStats {
     /// E-step deviation `sigma`, m.
@@ -267,6 +271,9 @@ pub struct IterationStats {
     pub after_split: usize,
     /// Merges done.
     pub merges: usize,
+    /// Segments removed by the model selection after the merge.
+    #[serde(default)]
+    pub pruned: usize,
     /// Segments at the end of the iteration.
     pub segments: usize,
     /// Mean point-to-nearest-segment distance at the end of the iteration, m.
@@ -293,7 +300,7 @@ pub struct PolygonMap {
     /// measured or no neighbourhood was line-like), m: the floor of the annealed `sigma`.
     #[serde(default)]
     pub noise_level: Option<f64>,
-    /// Segments removed by the model selection after the fit.
+    /// Segments removed by the last model selection, after the final split.
     #[serde(default)]
     pub pruned: usize,
     /// Statistics of every iteration.
@@ -549,6 +556,14 @@ fn iteration(
         r,
     };
     let (segments, merges) = merge::merge_all(segments, &scales);
+    // Model selection inside the loop too, so that the split's new pieces must earn their
+    // place every iteration: the segment count then settles (a fixed point) instead of
+    // growing until the distance stops changing.
+    let (segments, pruned) = if params.select_segments {
+        select::prune(points, segments, 3.0 * sigma)
+    } else {
+        (segments, 0)
+    };
     let distances = nearest_distances(points, &segments);
     let stats = IterationStats {
         sigma,
@@ -557,6 +572,7 @@ fn iteration(
         subsegments: (report.subsegments, report.removed),
         after_split,
         merges,
+        pruned,
         segments: segments.len(),
         mean_distance: mean(&distances).unwrap_or(f64::INFINITY),
     };

@@ -127,87 +127,20 @@ impl SegmentGrid {
         }
     }
 
-    /// The segments whose squared distance to `p` is at most `d_min^2 + extra_sq`, where
-    /// `d_min` is the distance to the nearest segment, as `(index, squared distance)` in
-    /// `out` (cleared first). `seen` (one stamp per segment, initially all `u32::MAX`) and
-    /// `stamp` (unique per query) avoid testing a segment twice. Returns the nearest one.
-    pub(crate) fn candidates(
+    /// Visits the segments listed in the cells around `p`, ring of cells by ring outwards,
+    /// each once (`seen`, one stamp per segment, initially all `u32::MAX`, and `stamp`, unique
+    /// per query): `visit(state, k)`. After each ring it stops when `done(state, reach_sq)`,
+    /// where every segment not visited yet is at least `sqrt(reach_sq)` from `p`.
+    fn walk_rings<S>(
         &self,
-        segments: &[Segment],
-        p: &Vector2<f64>,
-        extra_sq: f64,
-        seen: &mut [u32],
-        stamp: u32,
-        out: &mut Vec<(u32, f64)>,
-    ) -> Option<(u32, f64)> {
-        out.clear();
-        let (ci, cj) = self.cells.cell_of(p);
-        let mut best: Option<(u32, f64)> = None;
-        let max_ring = self.cells.nx.max(self.cells.ny);
-        for ring in 0..=max_ring {
-            let (i0, i1) = (ci as isize - ring as isize, ci as isize + ring as isize);
-            let (j0, j1) = (cj as isize - ring as isize, cj as isize + ring as isize);
-            for j in j0..=j1 {
-                if j < 0 || j >= self.cells.ny as isize {
-                    continue;
-                }
-                let on_edge_row = j == j0 || j == j1;
-                let step = if on_edge_row { 1 } else { (i1 - i0).max(1) };
-                let mut i = i0;
-                while i <= i1 {
-                    if i >= 0 && i < self.cells.nx as isize {
-                        let c = self.cells.index((i as usize, j as usize));
-                        for &k in &self.items[self.start[c] as usize..self.start[c + 1] as usize] {
-                            if seen[k as usize] == stamp {
-                                continue;
-                            }
-                            seen[k as usize] = stamp;
-                            let s = &segments[k as usize];
-                            let d = point_segment_distance_sq(p, &s.start, &s.end);
-                            out.push((k, d));
-                            if best.is_none_or(|(bk, bd)| d < bd || (d == bd && k < bk)) {
-                                best = Some((k, d));
-                            }
-                        }
-                    }
-                    i += step;
-                }
-            }
-            // Segments not met yet lie in outer rings, at least `ring * h` away.
-            if let Some((_, d)) = best {
-                let reach = ring as f64 * self.cells.h;
-                if reach * reach >= d + extra_sq {
-                    break;
-                }
-            }
-        }
-        let (_, d_min) = best?;
-        out.retain(|&(_, d)| d <= d_min + extra_sq);
-        out.sort_unstable_by_key(|&(k, _)| k);
-        best
-    }
-}
-
-/// A segment's index and its squared distance to a point.
-pub(crate) type Nearest = (u32, f64);
-
-impl SegmentGrid {
-    /// The nearest and the second nearest segment to `p`, as `(index, squared distance)`
-    /// (the second `None` with a single segment). `seen` and `stamp` as in
-    /// [`SegmentGrid::candidates`].
-    pub(crate) fn two_nearest(
-        &self,
-        segments: &[Segment],
         p: &Vector2<f64>,
         seen: &mut [u32],
         stamp: u32,
-    ) -> Option<(Nearest, Option<Nearest>)> {
+        state: &mut S,
+        visit: impl Fn(&mut S, u32),
+        done: impl Fn(&S, f64) -> bool,
+    ) {
         let (ci, cj) = self.cells.cell_of(p);
-        let mut best: Option<(u32, f64)> = None;
-        let mut second: Option<(u32, f64)> = None;
-        let closer = |(k, d): (u32, f64), than: Option<(u32, f64)>| {
-            than.is_none_or(|(tk, td)| d < td || (d == td && k < tk))
-        };
         let max_ring = self.cells.nx.max(self.cells.ny);
         for ring in 0..=max_ring {
             let (i0, i1) = (ci as isize - ring as isize, ci as isize + ring as isize);
@@ -220,17 +153,9 @@ impl SegmentGrid {
                     if i >= 0 && i < self.cells.nx as isize {
                         let c = self.cells.index((i as usize, j as usize));
                         for &k in &self.items[self.start[c] as usize..self.start[c + 1] as usize] {
-                            if seen[k as usize] == stamp {
-                                continue;
-                            }
-                            seen[k as usize] = stamp;
-                            let s = &segments[k as usize];
-                            let found = (k, point_segment_distance_sq(p, &s.start, &s.end));
-                            if closer(found, best) {
-                                second = best;
-                                best = Some(found);
-                            } else if closer(found, second) {
-                                second = Some(found);
+                            if seen[k as usize] != stamp {
+                                seen[k as usize] = stamp;
+                                visit(state, k);
                             }
                         }
                     }
@@ -238,15 +163,90 @@ impl SegmentGrid {
                 }
             }
             // Segments not met yet lie in outer rings, at least `ring * h` away.
-            if let Some((_, d)) = second {
-                let reach = ring as f64 * self.cells.h;
-                if reach * reach >= d {
-                    break;
-                }
+            let reach = ring as f64 * self.cells.h;
+            if done(state, reach * reach) {
+                break;
             }
         }
+    }
+
+    /// The segments whose squared distance to `p` is at most `d_min^2 + extra_sq`, where
+    /// `d_min` is the distance to the nearest segment, as `(index, squared distance)` in
+    /// `out` (cleared first). `seen` and `stamp` as in [`SegmentGrid::walk_rings`]. Returns
+    /// the nearest one.
+    pub(crate) fn candidates(
+        &self,
+        segments: &[Segment],
+        p: &Vector2<f64>,
+        extra_sq: f64,
+        seen: &mut [u32],
+        stamp: u32,
+        out: &mut Vec<(u32, f64)>,
+    ) -> Option<(u32, f64)> {
+        out.clear();
+        let mut state: (Option<Nearest>, &mut Vec<(u32, f64)>) = (None, out);
+        self.walk_rings(
+            p,
+            seen,
+            stamp,
+            &mut state,
+            |(best, out), k| {
+                let s = &segments[k as usize];
+                let found = (k, point_segment_distance_sq(p, &s.start, &s.end));
+                out.push(found);
+                if closer(found, *best) {
+                    *best = Some(found);
+                }
+            },
+            |(best, _), reach_sq| best.is_some_and(|(_, d)| reach_sq >= d + extra_sq),
+        );
+        let (best, out) = state;
+        let (_, d_min) = best?;
+        out.retain(|&(_, d)| d <= d_min + extra_sq);
+        out.sort_unstable_by_key(|&(k, _)| k);
+        best
+    }
+
+    /// The nearest and the second nearest segment to `p`, as `(index, squared distance)`
+    /// (the second `None` with a single segment). `seen` and `stamp` as in
+    /// [`SegmentGrid::walk_rings`].
+    pub(crate) fn two_nearest(
+        &self,
+        segments: &[Segment],
+        p: &Vector2<f64>,
+        seen: &mut [u32],
+        stamp: u32,
+    ) -> Option<(Nearest, Option<Nearest>)> {
+        let mut state: (Option<Nearest>, Option<Nearest>) = (None, None);
+        self.walk_rings(
+            p,
+            seen,
+            stamp,
+            &mut state,
+            |(best, second), k| {
+                let s = &segments[k as usize];
+                let found = (k, point_segment_distance_sq(p, &s.start, &s.end));
+                if closer(found, *best) {
+                    *second = *best;
+                    *best = Some(found);
+                } else if closer(found, *second) {
+                    *second = Some(found);
+                }
+            },
+            |(_, second), reach_sq| second.is_some_and(|(_, d)| reach_sq >= d),
+        );
+        let (best, second) = state;
         best.map(|b| (b, second))
     }
+}
+
+/// A segment's index and its squared distance to a point.
+pub(crate) type Nearest = (u32, f64);
+
+/// Whether `found` is nearer than `than` (ties to the lower index; anything is nearer than
+/// nothing).
+fn closer((k, d): Nearest, than: Option<Nearest>) -> bool {
+    than.is_none_or(|(tk, td)| d < td || (d == td && k < tk))
 }
 
 /// Points by grid cell, to count the points in a small square quickly.
@@ -376,6 +376,13 @@ mod tests {
                 .collect();
             let got: Vec<u32> = out.iter().map(|c| c.0).collect();
             assert_eq!(got, expected, "point {p:?}");
+            // The two nearest, against sorting all the distances (ties to the lower index).
+            let mut sorted: Vec<(u32, f64)> = (0..segments.len() as u32)
+                .map(|k| (k, all[k as usize]))
+                .collect();
+            sorted.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            let two = grid.two_nearest(&segments, &p, &mut seen, q + 1000);
+            assert_eq!(two, Some((sorted[0], Some(sorted[1]))), "point {p:?}");
         }
     }
 

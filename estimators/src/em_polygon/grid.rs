@@ -129,15 +129,17 @@ impl SegmentGrid {
 
     /// Visits the segments listed in the cells around `p`, ring of cells by ring outwards,
     /// each once (`seen`, one stamp per segment, initially all `u32::MAX`, and `stamp`, unique
-    /// per query): `visit(state, k)`. After each ring it stops when `done(state, reach_sq)`,
+    /// per query): `visit(state, (k, squared distance of segment k to p))`. After each ring it stops when `done(state, reach_sq)`,
     /// where every segment not visited yet is at least `sqrt(reach_sq)` from `p`.
+    #[allow(clippy::too_many_arguments)] // the query, its stamps, and the visitor's three parts
     fn walk_rings<S>(
         &self,
+        segments: &[Segment],
         p: &Vector2<f64>,
         seen: &mut [u32],
         stamp: u32,
         state: &mut S,
-        visit: impl Fn(&mut S, u32),
+        visit: impl Fn(&mut S, Nearest),
         done: impl Fn(&S, f64) -> bool,
     ) {
         let (ci, cj) = self.cells.cell_of(p);
@@ -155,7 +157,8 @@ impl SegmentGrid {
                         for &k in &self.items[self.start[c] as usize..self.start[c + 1] as usize] {
                             if seen[k as usize] != stamp {
                                 seen[k as usize] = stamp;
-                                visit(state, k);
+                                let s = &segments[k as usize];
+                                visit(state, (k, point_segment_distance_sq(p, &s.start, &s.end)));
                             }
                         }
                     }
@@ -186,13 +189,12 @@ impl SegmentGrid {
         out.clear();
         let mut state: (Option<Nearest>, &mut Vec<(u32, f64)>) = (None, out);
         self.walk_rings(
+            segments,
             p,
             seen,
             stamp,
             &mut state,
-            |(best, out), k| {
-                let s = &segments[k as usize];
-                let found = (k, point_segment_distance_sq(p, &s.start, &s.end));
+            |(best, out), found| {
                 out.push(found);
                 if closer(found, *best) {
                     *best = Some(found);
@@ -219,13 +221,12 @@ impl SegmentGrid {
     ) -> Option<(Nearest, Option<Nearest>)> {
         let mut state: (Option<Nearest>, Option<Nearest>) = (None, None);
         self.walk_rings(
+            segments,
             p,
             seen,
             stamp,
             &mut state,
-            |(best, second), k| {
-                let s = &segments[k as usize];
-                let found = (k, point_segment_distance_sq(p, &s.start, &s.end));
+            |(best, second), found| {
                 if closer(found, *best) {
                     *second = *best;
                     *best = Some(found);

@@ -174,6 +174,14 @@ impl BoundingBox {
         bbox
     }
 
+    /// Grows the box to hold `other` as well.
+    pub(crate) fn include(&mut self, other: &BoundingBox) {
+        for k in 0..2 {
+            self.lo[k] = self.lo[k].min(other.lo[k]);
+            self.hi[k] = self.hi[k].max(other.hi[k]);
+        }
+    }
+
     /// Whether the boxes come within `margin` of each other.
     pub(crate) fn near(&self, other: &BoundingBox, margin: f64) -> bool {
         (0..2).all(|k| self.lo[k] - margin <= other.hi[k] && other.lo[k] - margin <= self.hi[k])

@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use slam_core::nalgebra::DMatrix;
 use slam_core::{
-    DynMeasurementModel, Feature, FeatureMap, Observation, Pose3, Result, RobotPose, Skips,
-    linearize,
+    DynMeasurementModel, Feature, FeatureMap, LinearizedMeasurement, Observation, Pose3, Result,
+    RobotPose, SensorFrame, Skips, linearize, linearize_at,
 };
 
 use crate::lifecycle::{
@@ -50,21 +50,26 @@ impl<P> Default for LandmarkMap<P> {
 }
 
 impl<P: RobotPose> Landmark<P> {
-    /// `(ln N(eta; 0, S), eta^T S^-1 eta, dim eta)` of an observation of this feature from
-    /// `pose`; `S = H P H^T + C_eta`, or `2 C_eta` for a tentative feature. `None` when the
-    /// measurement cannot be linearized or `S` is not positive definite.
-    pub(super) fn likelihood(
+    /// The observation linearized at this feature from the sensor `frame` (the frame of the
+    /// observation's sensor at the particle's pose, made once for all of its candidates).
+    /// `None` when the measurement cannot be linearized.
+    pub(super) fn linearize(
         &self,
         observation: &Observation,
-        pose: &P,
-    ) -> Option<(f64, f64, usize)> {
-        let lin = linearize(
+        frame: &SensorFrame,
+    ) -> Option<LinearizedMeasurement> {
+        linearize_at(
             observation.measurement.as_ref(),
             self.feature.as_ref(),
-            pose,
-            &observation.robot_from_sensor,
+            frame,
         )
-        .ok()?;
+        .ok()
+    }
+
+    /// `(ln N(eta; 0, S), eta^T S^-1 eta, dim eta)` of a measurement of this feature
+    /// linearized as `lin`; `S = H P H^T + C_eta`, or `2 C_eta` for a tentative feature.
+    /// `None` when `S` is not positive definite.
+    pub(super) fn likelihood(&self, lin: &LinearizedMeasurement) -> Option<(f64, f64, usize)> {
         let s = if self.feature.mspace_dim() == 0 {
             &lin.cov_eta * 2.0
         } else {
@@ -92,29 +97,39 @@ impl<P: RobotPose> Landmark<P> {
             skips.count("update: linearization failed");
             return Ok(());
         };
+        self.update_linearized(&lin, skips);
+        Ok(())
+    }
+
+    /// [`Landmark::update`] with the measurement already linearized at this feature (as it
+    /// is now) from the sensor's pose.
+    pub(super) fn update_linearized(&mut self, lin: &LinearizedMeasurement, skips: &mut Skips) {
+        let n = self.feature.mspace_dim();
+        if n == 0 || self.cov.shape() != (n, n) {
+            return;
+        }
         let h = &lin.d_eta_d_own;
         let ph_t = &self.cov * h.transpose();
         let s = h * &ph_t + &lin.cov_eta;
         let Some(cholesky) = s.cholesky() else {
             skips.count("update: innovation covariance not positive definite");
-            return Ok(());
+            return;
         };
         let k = cholesky.solve(&ph_t.transpose()).transpose();
         let dx = -(&k * &lin.eta);
         if !dx.iter().all(|v| v.is_finite()) {
             skips.count("update: non-finite state change");
-            return Ok(());
+            return;
         }
         let mut candidate = slam_core::dyn_clone::clone_box(self.feature.as_ref());
         if candidate.apply_perturbation(&dx).is_err() {
             skips.count("update: state change refused by the feature");
-            return Ok(());
+            return;
         }
         let i_kh = DMatrix::identity(n, n) - &k * h;
         let cov = &i_kh * &self.cov * i_kh.transpose() + &k * &lin.cov_eta * k.transpose();
         self.cov = 0.5 * (&cov + cov.transpose());
         self.feature = candidate;
-        Ok(())
     }
 
     /// Grows the feature (the shared lifecycle rule) with block-diagonal priors for its new

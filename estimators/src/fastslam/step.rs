@@ -5,12 +5,14 @@ use std::sync::Arc;
 
 use rand_chacha::ChaCha8Rng;
 use slam_core::nalgebra::{DMatrix, DVector};
-use slam_core::{DynMeasurementModel, Observation, Result, RobotPose, UpdateReport};
+use slam_core::{
+    DynMeasurementModel, Feature, Observation, Result, RobotPose, SensorFrame, UpdateReport,
+};
 
 use super::landmark::{Landmark, LandmarkMap};
 use super::{FastSlamParams, Proposal};
 use crate::association::{
-    Candidate, Choice, Gates, associate, candidate_features, crowded, sort_by_distance,
+    BoundingBox, Candidate, Choice, Gates, associate, candidate_features, crowded, sort_by_distance,
 };
 use crate::lifecycle::{Sighting, Track};
 use crate::particles::{Particle, log_normal};
@@ -136,16 +138,24 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         let mut decisions: Vec<Option<Decision>> = Vec::with_capacity(observations.len());
         let mut open = Vec::new();
         let mut lists = Vec::new();
+        let particle: &Particle<P, LandmarkMap<P>> = self.particle;
+        let nearby = near_any(particle, self.context, observations);
         for (index, observation) in observations.iter().enumerate() {
             match observation.landmark_id {
-                Some(id) => decisions.push(Some(match self.particle.map.ids.get(&id) {
+                Some(id) => decisions.push(Some(match particle.map.ids.get(&id) {
                     Some(&slot) => Decision::Pair(slot),
                     None => Decision::New,
                 })),
                 None => {
                     decisions.push(None);
                     open.push(index);
-                    lists.push(self.candidates(observation)?);
+                    lists.push(candidates(
+                        particle,
+                        self.context,
+                        &mut self.report,
+                        observation,
+                        &nearby,
+                    ));
                 }
             }
         }
@@ -202,43 +212,6 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         )
     }
 
-    /// The particle's features an observation without an id can be of, with their
-    /// likelihoods, nearest first.
-    fn candidates(&mut self, observation: &Observation) -> Result<Vec<Candidate<f64>>> {
-        let pose = self.particle.pose;
-        let world_from_sensor = pose.world_from_sensor(&observation.robot_from_sensor);
-        let landmarks = &self.particle.map.landmarks;
-        let features = landmarks.iter().map(|(slot, l)| (slot, l.feature.as_ref()));
-        let nearby = candidate_features(
-            features,
-            observation.measurement.as_ref(),
-            &world_from_sensor,
-            self.context.params.association_margin,
-            &mut self.report.skipped,
-        );
-        let mut list = Vec::with_capacity(nearby.len());
-        for (slot, feature, _) in nearby {
-            let Some(landmark) = landmarks.get(slot) else {
-                continue;
-            };
-            let Some((log_likelihood, d2, dof)) = landmark.likelihood(observation, &pose) else {
-                self.report
-                    .skipped
-                    .count("association: candidate likelihood not computable");
-                continue;
-            };
-            list.push(Candidate {
-                feature: slot,
-                distance: d2,
-                dof,
-                tentative: feature.mspace_dim() == 0,
-                data: log_likelihood,
-            });
-        }
-        sort_by_distance(&mut list);
-        Ok(list)
-    }
-
     /// Pairs an observation with the feature in `slot`: weight, sighting, growth, EKF update,
     /// extension.
     fn pair(&mut self, slot: usize, index: usize, observation: &Observation) -> Result<()> {
@@ -247,7 +220,11 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             self.report.rejected += 1;
             return Ok(());
         };
-        let Some((log_likelihood, d2, dof)) = landmark.likelihood(observation, &pose) else {
+        let lin = SensorFrame::new(&pose, &observation.robot_from_sensor)
+            .ok()
+            .and_then(|frame| landmark.linearize(observation, &frame));
+        let likelihood = lin.as_ref().and_then(|lin| landmark.likelihood(lin));
+        let (Some(lin), Some((log_likelihood, d2, dof))) = (lin, likelihood) else {
             self.report.rejected += 1;
             self.report
                 .skipped
@@ -270,13 +247,17 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         // As in the EKF: sighting and growth first, then one update on the (new) rows.
         sight(landmark, context, index, observation, &pose, skips)?;
         let grown = landmark.grow(observation, &context.params.lifecycle_settings(), skips)?;
-        if confirmed || grown {
+        if grown {
+            // New rows: linearized again at the grown feature.
             landmark.update(
                 observation.measurement.as_ref(),
                 &pose,
                 &observation.robot_from_sensor,
                 skips,
             )?;
+        } else if confirmed {
+            // A sighting does not change the feature: the pairing's linearization holds.
+            landmark.update_linearized(&lin, skips);
         }
         landmark.extend(observation, &pose, skips)
     }
@@ -385,6 +366,90 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         }
         map.tentative = keep;
     }
+}
+
+/// The particle's features, in slot order, whose bounding box lies within the association
+/// margin of the box of every feature the step's observations without an id would start: one
+/// pass over the map per step instead of one per observation. All of them when one of those
+/// observations places no feature (no spatial filter for it).
+fn near_any<'f, P: RobotPose>(
+    particle: &'f Particle<P, LandmarkMap<P>>,
+    context: &StepContext<'_>,
+    observations: &[Observation],
+) -> Vec<(usize, &'f dyn Feature)> {
+    let features = particle
+        .map
+        .landmarks
+        .iter()
+        .map(|(slot, l)| (slot, l.feature.as_ref()));
+    let mut reach = BoundingBox::default();
+    for observation in observations.iter().filter(|o| o.landmark_id.is_none()) {
+        let world_from_sensor = particle
+            .pose
+            .world_from_sensor(&observation.robot_from_sensor);
+        match observation
+            .measurement
+            .initial_feature_dyn(&world_from_sensor)
+        {
+            Ok(Some(feature)) => reach.include(&BoundingBox::of(feature.coordinates())),
+            _ => return features.collect(),
+        }
+    }
+    let margin = context.params.association_margin;
+    features
+        .filter(|(_, f)| BoundingBox::of(f.coordinates()).near(&reach, margin))
+        .collect()
+}
+
+/// The particle's features an observation without an id can be of, with their
+/// likelihoods, nearest first. `nearby` is the particle's features that may be near one of
+/// the step's observations ([`near_any`]); the sensor's frame at the
+/// particle's pose is made once for all of them.
+fn candidates<'f, P: RobotPose>(
+    particle: &'f Particle<P, LandmarkMap<P>>,
+    context: &StepContext<'_>,
+    report: &mut UpdateReport,
+    observation: &Observation,
+    nearby: &[(usize, &'f dyn Feature)],
+) -> Vec<Candidate<f64>> {
+    let Ok(frame) = SensorFrame::new(&particle.pose, &observation.robot_from_sensor) else {
+        report
+            .skipped
+            .count("association: sensor pose has no map-to-sensor transform");
+        return Vec::new();
+    };
+    let landmarks = &particle.map.landmarks;
+    let near = candidate_features(
+        nearby.iter().copied(),
+        observation.measurement.as_ref(),
+        frame.world_from_sensor(),
+        context.params.association_margin,
+        &mut report.skipped,
+    );
+    let mut list = Vec::with_capacity(near.len());
+    for (slot, feature, _) in near {
+        let Some(landmark) = landmarks.get(slot) else {
+            continue;
+        };
+        let likelihood = landmark
+            .linearize(observation, &frame)
+            .and_then(|lin| landmark.likelihood(&lin));
+        let Some((log_likelihood, d2, dof)) = likelihood else {
+            report
+                .skipped
+                .count("association: candidate likelihood not computable");
+            continue;
+        };
+        list.push(Candidate {
+            feature: slot,
+            distance: d2,
+            dof,
+            tentative: feature.mspace_dim() == 0,
+            data: log_likelihood,
+        });
+    }
+    sort_by_distance(&mut list);
+    list
 }
 
 /// Counts a sighting of `landmark` on its track (the shared lifecycle), keeping the step's

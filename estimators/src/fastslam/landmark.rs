@@ -10,11 +10,27 @@ use slam_core::{
     RobotPose, SensorFrame, Skips, linearize, linearize_at,
 };
 
+use crate::association::BoundingBox;
 use crate::lifecycle::{
     LifecycleSettings, OUTSIDE_MSPACE_TOLERANCE, Track, drop_views_when_grown, extension_of, grow,
 };
 use crate::particles::log_normal;
-use crate::particles::pvec::PVec;
+use crate::particles::pvec::{PVec, Summary};
+
+/// A subtree of a particle's map summarized by the bounding box of its features.
+impl<P> Summary<Landmark<P>> for BoundingBox {
+    fn empty() -> Self {
+        BoundingBox::default()
+    }
+
+    fn of(landmark: &Landmark<P>) -> Self {
+        BoundingBox::of(landmark.feature.coordinates())
+    }
+
+    fn join(&mut self, other: &Self) {
+        self.include(other);
+    }
+}
 
 /// One feature of one particle.
 #[derive(Clone, Debug)]
@@ -28,7 +44,8 @@ pub(super) struct Landmark<P> {
 /// A particle's map and what it keeps besides.
 #[derive(Clone, Debug)]
 pub(super) struct LandmarkMap<P> {
-    pub landmarks: PVec<Landmark<P>>,
+    /// The features, with the bounding box of each subtree for the candidate search.
+    pub landmarks: PVec<Landmark<P>, BoundingBox>,
     /// Known landmark ids to slots (copied on write: only when a new id appears).
     pub ids: Arc<BTreeMap<u64, usize>>,
     /// Slots of tentative features (few), for pruning.

@@ -370,18 +370,14 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
 
 /// The particle's features, in slot order, whose bounding box lies within the association
 /// margin of the box of every feature the step's observations without an id would start: one
-/// pass over the map per step instead of one per observation. All of them when one of those
+/// search of the map's boxes per step instead of a pass over the map per observation. All of them when one of those
 /// observations places no feature (no spatial filter for it).
 fn near_any<'f, P: RobotPose>(
     particle: &'f Particle<P, LandmarkMap<P>>,
     context: &StepContext<'_>,
     observations: &[Observation],
 ) -> Vec<(usize, &'f dyn Feature)> {
-    let features = particle
-        .map
-        .landmarks
-        .iter()
-        .map(|(slot, l)| (slot, l.feature.as_ref()));
+    let landmarks = &particle.map.landmarks;
     let mut reach = BoundingBox::default();
     for observation in observations.iter().filter(|o| o.landmark_id.is_none()) {
         let world_from_sensor = particle
@@ -392,12 +388,20 @@ fn near_any<'f, P: RobotPose>(
             .initial_feature_dyn(&world_from_sensor)
         {
             Ok(Some(feature)) => reach.include(&BoundingBox::of(feature.coordinates())),
-            _ => return features.collect(),
+            _ => {
+                return landmarks
+                    .iter()
+                    .map(|(slot, l)| (slot, l.feature.as_ref()))
+                    .collect();
+            }
         }
     }
     let margin = context.params.association_margin;
-    features
-        .filter(|(_, f)| BoundingBox::of(f.coordinates()).near(&reach, margin))
+    // A subtree's box is near the reach whenever one of its features' boxes is.
+    landmarks
+        .iter_where(|bbox| bbox.near(&reach, margin))
+        .into_iter()
+        .map(|(slot, l)| (slot, l.feature.as_ref()))
         .collect()
 }
 

@@ -4,40 +4,120 @@
 //! O(log16 n) nodes of 16 pointers, and only when the path is shared. This is what lets the
 //! particles of [`super::FastSlam`] share their maps after resampling: a resampled particle
 //! is a clone of its parent's root, and the features it later updates are copied on write.
+//!
+//! Each node may also keep a [`Summary`] of its subtree (a bounding box of its features, say),
+//! computed when a query first asks for it and forgotten when the subtree is written, so that
+//! [`PVec::iter_where`] skips whole subtrees a query cannot want.
 
-use std::sync::Arc;
+use std::fmt::Debug;
+use std::sync::{Arc, OnceLock};
 
 const BITS: u32 = 4;
 const WIDTH: usize = 1 << BITS;
 const MASK: usize = WIDTH - 1;
 
+/// What a node knows of the elements under it: `of` one element, `join`ed over a subtree.
+/// A subtree whose summary a query rejects holds no element the query wants, so the summary
+/// of a set must be rejected only when every element's summary would be.
+pub(crate) trait Summary<T>: Clone + Debug + Send + Sync {
+    /// The summary of no element.
+    fn empty() -> Self;
+    /// The summary of one element.
+    fn of(value: &T) -> Self;
+    /// Adds `other`'s elements to this summary.
+    fn join(&mut self, other: &Self);
+}
+
+/// No summary: every query visits every element.
+impl<T> Summary<T> for () {
+    fn empty() -> Self {}
+    fn of(_: &T) -> Self {}
+    fn join(&mut self, _: &Self) {}
+}
+
 #[derive(Debug)]
-enum Node<T> {
-    Branch(Vec<Arc<Node<T>>>),
+enum Children<T, S> {
+    Branch(Vec<Arc<Node<T, S>>>),
     Leaf(Vec<Option<Arc<T>>>),
 }
 
-impl<T> Clone for Node<T> {
+#[derive(Debug)]
+struct Node<T, S> {
+    children: Children<T, S>,
+    /// The subtree's summary, once a query asked for it; cleared on every write below.
+    summary: OnceLock<S>,
+}
+
+impl<T, S: Clone> Clone for Node<T, S> {
     fn clone(&self) -> Self {
-        match self {
-            Node::Branch(children) => Node::Branch(children.clone()),
-            Node::Leaf(values) => Node::Leaf(values.clone()),
+        let children = match &self.children {
+            Children::Branch(children) => Children::Branch(children.clone()),
+            Children::Leaf(values) => Children::Leaf(values.clone()),
+        };
+        Node {
+            children,
+            summary: self.summary.clone(),
         }
     }
+}
+
+impl<T, S> Node<T, S> {
+    fn branch(children: Vec<Arc<Node<T, S>>>) -> Self {
+        Node {
+            children: Children::Branch(children),
+            summary: OnceLock::new(),
+        }
+    }
+
+    fn leaf() -> Self {
+        Node {
+            children: Children::Leaf(Vec::new()),
+            summary: OnceLock::new(),
+        }
+    }
+}
+
+impl<T, S: Summary<T>> Node<T, S> {
+    /// The subtree's summary, computed (and kept) on first use.
+    fn summary(&self) -> &S {
+        self.summary.get_or_init(|| {
+            let mut summary = S::empty();
+            match &self.children {
+                Children::Branch(children) => {
+                    for child in children {
+                        summary.join(child.summary());
+                    }
+                }
+                Children::Leaf(values) => {
+                    for value in values.iter().flatten() {
+                        summary.join(&S::of(value));
+                    }
+                }
+            }
+            summary
+        })
+    }
+}
+
+/// `Arc::make_mut` on a node that is about to change below: its summary is forgotten.
+fn make_mut<T: Clone, S: Clone>(node: &mut Arc<Node<T, S>>) -> &mut Node<T, S> {
+    let node = Arc::make_mut(node);
+    node.summary.take();
+    node
 }
 
 /// A persistent vector of optional elements (a removed element leaves a hole, so indices are
 /// stable identifiers).
 #[derive(Debug)]
-pub(crate) struct PVec<T> {
-    root: Arc<Node<T>>,
+pub(crate) struct PVec<T, S = ()> {
+    root: Arc<Node<T, S>>,
     /// Number of slots (holes included).
     len: usize,
     /// Trie levels above the leaves.
     shift: u32,
 }
 
-impl<T> Clone for PVec<T> {
+impl<T, S> Clone for PVec<T, S> {
     fn clone(&self) -> Self {
         PVec {
             root: Arc::clone(&self.root),
@@ -47,17 +127,17 @@ impl<T> Clone for PVec<T> {
     }
 }
 
-impl<T> Default for PVec<T> {
+impl<T, S> Default for PVec<T, S> {
     fn default() -> Self {
         PVec {
-            root: Arc::new(Node::Leaf(Vec::new())),
+            root: Arc::new(Node::leaf()),
             len: 0,
             shift: 0,
         }
     }
 }
 
-impl<T: Clone> PVec<T> {
+impl<T: Clone, S: Summary<T>> PVec<T, S> {
     /// The element in slot `index`, if any.
     pub(crate) fn get(&self, index: usize) -> Option<&T> {
         if index >= self.len {
@@ -66,12 +146,12 @@ impl<T: Clone> PVec<T> {
         let mut node = self.root.as_ref();
         let mut shift = self.shift;
         loop {
-            match node {
-                Node::Branch(children) => {
+            match &node.children {
+                Children::Branch(children) => {
                     node = children.get((index >> shift) & MASK)?.as_ref();
                     shift = shift.saturating_sub(BITS);
                 }
-                Node::Leaf(values) => return values.get(index & MASK)?.as_deref(),
+                Children::Leaf(values) => return values.get(index & MASK)?.as_deref(),
             }
         }
     }
@@ -85,8 +165,8 @@ impl<T: Clone> PVec<T> {
     pub(crate) fn push(&mut self, value: T) -> usize {
         let index = self.len;
         if index >= Self::capacity(self.shift) {
-            let old = std::mem::replace(&mut self.root, Arc::new(Node::Branch(Vec::new())));
-            self.root = Arc::new(Node::Branch(vec![old]));
+            let old = std::mem::replace(&mut self.root, Arc::new(Node::branch(Vec::new())));
+            self.root = Arc::new(Node::branch(vec![old]));
             self.shift += BITS;
         }
         self.len += 1;
@@ -107,16 +187,16 @@ impl<T: Clone> PVec<T> {
         if index >= self.len {
             return None;
         }
-        let mut node = Arc::make_mut(&mut self.root);
+        let mut node = make_mut(&mut self.root);
         let mut shift = self.shift;
         loop {
-            match node {
-                Node::Branch(children) => {
+            match &mut node.children {
+                Children::Branch(children) => {
                     let child = children.get_mut((index >> shift) & MASK)?;
-                    node = Arc::make_mut(child);
+                    node = make_mut(child);
                     shift = shift.saturating_sub(BITS);
                 }
-                Node::Leaf(values) => {
+                Children::Leaf(values) => {
                     return values.get_mut(index & MASK)?.as_mut().map(Arc::make_mut);
                 }
             }
@@ -124,24 +204,24 @@ impl<T: Clone> PVec<T> {
     }
 
     fn write(&mut self, index: usize, value: Option<Arc<T>>) {
-        let mut node = Arc::make_mut(&mut self.root);
+        let mut node = make_mut(&mut self.root);
         let mut shift = self.shift;
         loop {
-            match node {
-                Node::Branch(children) => {
+            match &mut node.children {
+                Children::Branch(children) => {
                     let slot = (index >> shift) & MASK;
                     while children.len() <= slot {
                         let fresh = if shift == BITS {
-                            Node::Leaf(Vec::new())
+                            Node::leaf()
                         } else {
-                            Node::Branch(Vec::new())
+                            Node::branch(Vec::new())
                         };
                         children.push(Arc::new(fresh));
                     }
-                    node = Arc::make_mut(&mut children[slot]);
+                    node = make_mut(&mut children[slot]);
                     shift -= BITS;
                 }
-                Node::Leaf(values) => {
+                Children::Leaf(values) => {
                     let slot = index & MASK;
                     while values.len() <= slot {
                         values.push(None);
@@ -156,22 +236,39 @@ impl<T: Clone> PVec<T> {
     /// Occupied slots with their elements, in slot order.
     pub(crate) fn iter(&self) -> impl Iterator<Item = (usize, &T)> {
         let mut out = Vec::new();
-        collect(&self.root, 0, &mut out);
+        collect(&self.root, 0, &|_: &S| true, &mut out);
         out.into_iter()
+    }
+
+    /// The occupied slots, in slot order, whose element's summary `wanted` accepts; whole
+    /// subtrees whose summary it rejects are skipped (see [`Summary`]).
+    pub(crate) fn iter_where(&self, wanted: impl Fn(&S) -> bool) -> Vec<(usize, &T)> {
+        let mut out = Vec::new();
+        collect(&self.root, 0, &wanted, &mut out);
+        out
     }
 }
 
-fn collect<'a, T>(node: &'a Node<T>, base: usize, out: &mut Vec<(usize, &'a T)>) {
-    match node {
-        Node::Branch(children) => {
+fn collect<'a, T, S: Summary<T>>(
+    node: &'a Node<T, S>,
+    base: usize,
+    wanted: &impl Fn(&S) -> bool,
+    out: &mut Vec<(usize, &'a T)>,
+) {
+    match &node.children {
+        Children::Branch(children) => {
             let span = subtree_span(node);
             for (k, child) in children.iter().enumerate() {
-                collect(child, base + k * span, out);
+                if wanted(child.summary()) {
+                    collect(child, base + k * span, wanted, out);
+                }
             }
         }
-        Node::Leaf(values) => {
+        Children::Leaf(values) => {
             for (k, value) in values.iter().enumerate() {
-                if let Some(v) = value {
+                if let Some(v) = value
+                    && wanted(&S::of(v))
+                {
                     out.push((base + k, v.as_ref()));
                 }
             }
@@ -180,10 +277,10 @@ fn collect<'a, T>(node: &'a Node<T>, base: usize, out: &mut Vec<(usize, &'a T)>)
 }
 
 /// Slots under each child of a branch node.
-fn subtree_span<T>(node: &Node<T>) -> usize {
+fn subtree_span<T, S>(node: &Node<T, S>) -> usize {
     let mut depth = 0;
     let mut current = node;
-    while let Node::Branch(children) = current {
+    while let Children::Branch(children) = &current.children {
         depth += 1;
         match children.first() {
             Some(child) => current = child,
@@ -199,7 +296,7 @@ mod tests {
 
     #[test]
     fn behaves_like_a_vector_and_shares_unchanged_slots() {
-        let mut a = PVec::default();
+        let mut a: PVec<usize> = PVec::default();
         let mut reference = Vec::new();
         for i in 0..1000usize {
             assert_eq!(a.push(i), i);
@@ -228,5 +325,57 @@ mod tests {
         assert_eq!(a.get(1000), None);
         // An untouched slot is the same allocation in both.
         assert!(std::ptr::eq(a.get(5).unwrap(), b.get(5).unwrap()));
+    }
+
+    /// The range of the values under a node.
+    #[derive(Clone, Debug)]
+    struct Range(usize, usize);
+
+    impl Summary<usize> for Range {
+        fn empty() -> Self {
+            Range(usize::MAX, 0)
+        }
+        fn of(value: &usize) -> Self {
+            Range(*value, *value)
+        }
+        fn join(&mut self, other: &Self) {
+            self.0 = self.0.min(other.0);
+            self.1 = self.1.max(other.1);
+        }
+    }
+
+    #[test]
+    fn iter_where_matches_a_filter_after_writes_to_shared_copies() {
+        let mut a: PVec<usize, Range> = PVec::default();
+        for i in 0..700usize {
+            a.push((i * 37) % 1000);
+        }
+        let query = |v: &PVec<usize, Range>, lo: usize, hi: usize| {
+            let pruned: Vec<(usize, usize)> = v
+                .iter_where(|r| r.0 <= hi && lo <= r.1)
+                .into_iter()
+                .map(|(k, x)| (k, *x))
+                .collect();
+            let filtered: Vec<(usize, usize)> = v
+                .iter()
+                .filter(|(_, x)| lo <= **x && **x <= hi)
+                .map(|(k, x)| (k, *x))
+                .collect();
+            assert_eq!(pruned, filtered, "query {lo}..={hi}");
+        };
+        // Summaries computed, then the copy written: both must answer from their own values.
+        query(&a, 100, 200);
+        let mut b = a.clone();
+        for i in (0..700).step_by(11) {
+            *b.get_mut(i).unwrap() = 5000 + i;
+        }
+        b.set(4, None);
+        b.push(150);
+        for (lo, hi) in [(100, 200), (0, 50), (5000, 5300), (990, 999), (2000, 3000)] {
+            query(&a, lo, hi);
+            query(&b, lo, hi);
+        }
+        assert!(b.iter_where(|r| r.0 <= 5300 && 5000 <= r.1).len() >= 28);
+        assert!(a.iter_where(|r| r.0 <= 5300 && 5000 <= r.1).is_empty());
     }
 }

@@ -370,8 +370,8 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
 
 /// The particle's features, in slot order, whose bounding box lies within the association
 /// margin of the box of every feature the step's observations without an id would start: one
-/// search of the map's boxes per step instead of a pass over the map per observation. All of them when one of those
-/// observations places no feature (no spatial filter for it).
+/// search of the map's boxes per step instead of a pass over the map per observation. All of
+/// them when one of those observations places no feature (no spatial filter for it).
 fn near_any<'f, P: RobotPose>(
     particle: &'f Particle<P, LandmarkMap<P>>,
     context: &StepContext<'_>,

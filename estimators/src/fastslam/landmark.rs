@@ -4,12 +4,13 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use slam_core::nalgebra::DMatrix;
+use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{
     DynMeasurementModel, Feature, FeatureMap, LinearizedMeasurement, Observation, Pose3, Result,
     RobotPose, SensorFrame, Skips, linearize, linearize_at,
 };
 
+use super::small;
 use crate::association::BoundingBox;
 use crate::lifecycle::{
     LifecycleSettings, OUTSIDE_MSPACE_TOLERANCE, Track, drop_views_when_grown, extension_of, grow,
@@ -87,6 +88,21 @@ impl<P: RobotPose> Landmark<P> {
     /// linearized as `lin`; `S = H P H^T + C_eta`, or `2 C_eta` for a tentative feature.
     /// `None` when `S` is not positive definite.
     pub(super) fn likelihood(&self, lin: &LinearizedMeasurement) -> Option<(f64, f64, usize)> {
+        let dof = lin.eta.len();
+        if self.feature.mspace_dim() == 0 {
+            if let Some(small) = small::log_likelihood(
+                &lin.eta,
+                &lin.cov_eta,
+                &DMatrix::zeros(dof, 0),
+                &DMatrix::zeros(0, 0),
+            ) {
+                return small.map(|(l, d2)| (l, d2, dof));
+            }
+        } else if let Some(small) =
+            small::log_likelihood(&lin.eta, &lin.cov_eta, &lin.d_eta_d_own, &self.cov)
+        {
+            return small.map(|(l, d2)| (l, d2, dof));
+        }
         let s = if self.feature.mspace_dim() == 0 {
             &lin.cov_eta * 2.0
         } else {
@@ -125,15 +141,10 @@ impl<P: RobotPose> Landmark<P> {
         if n == 0 || self.cov.shape() != (n, n) {
             return;
         }
-        let h = &lin.d_eta_d_own;
-        let ph_t = &self.cov * h.transpose();
-        let s = h * &ph_t + &lin.cov_eta;
-        let Some(cholesky) = s.cholesky() else {
+        let Some((dx, cov)) = self.ekf_step(lin) else {
             skips.count("update: innovation covariance not positive definite");
             return;
         };
-        let k = cholesky.solve(&ph_t.transpose()).transpose();
-        let dx = -(&k * &lin.eta);
         if !dx.iter().all(|v| v.is_finite()) {
             skips.count("update: non-finite state change");
             return;
@@ -143,10 +154,27 @@ impl<P: RobotPose> Landmark<P> {
             skips.count("update: state change refused by the feature");
             return;
         }
-        let i_kh = DMatrix::identity(n, n) - &k * h;
-        let cov = &i_kh * &self.cov * i_kh.transpose() + &k * &lin.cov_eta * k.transpose();
-        self.cov = 0.5 * (&cov + cov.transpose());
+        self.cov = cov;
         self.feature = candidate;
+    }
+
+    /// `dx = -K eta` and the Joseph-form covariance `(I - K H) P (I - K H)^T + K C K^T`
+    /// (symmetrized) for `K = P H^T S^-1`, `S = H P H^T + C`; on the stack for small sizes.
+    /// `None` when `S` is not positive definite.
+    fn ekf_step(&self, lin: &LinearizedMeasurement) -> Option<(DVector<f64>, DMatrix<f64>)> {
+        let (h, p, c) = (&lin.d_eta_d_own, &self.cov, &lin.cov_eta);
+        if let Some(small) = small::update(&lin.eta, c, h, p) {
+            return small;
+        }
+        let ph_t = p * h.transpose();
+        let k = (h * &ph_t + c)
+            .cholesky()?
+            .solve(&ph_t.transpose())
+            .transpose();
+        let dx = -(&k * &lin.eta);
+        let i_kh = DMatrix::identity(p.nrows(), p.nrows()) - &k * h;
+        let cov = &i_kh * p * i_kh.transpose() + &k * c * k.transpose();
+        Some((dx, 0.5 * (&cov + cov.transpose())))
     }
 
     /// Grows the feature (the shared lifecycle rule) with block-diagonal priors for its new

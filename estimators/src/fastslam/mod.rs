@@ -27,6 +27,7 @@
 
 mod landmark;
 mod proposal;
+mod small;
 mod step;
 
 use std::sync::OnceLock;

@@ -51,11 +51,13 @@ impl<P: Copy> Ancestry<P> {
     }
 }
 
-impl<P> Drop for Ancestry<P> {
-    /// Frees the nodes no other path shares one at a time: a recursive drop of a long path
-    /// would overflow the stack.
+impl<P> Drop for Node<P> {
+    /// Frees the nodes before this one that no other path shares, one at a time: a recursive
+    /// drop of a long path would overflow the stack. Paths may be dropped on several threads
+    /// at once: a node whose other owner lets go at the same moment is freed by whichever
+    /// thread drops it last, again one node at a time.
     fn drop(&mut self) {
-        let mut next = self.last.take();
+        let mut next = self.before.take();
         while let Some(node) = next {
             match Arc::try_unwrap(node) {
                 Ok(mut owned) => next = owned.before.take(),
@@ -95,5 +97,23 @@ mod tests {
         assert_eq!(shared.len(), 1_000_000);
         drop(path);
         drop(shared);
+    }
+
+    #[test]
+    fn shared_paths_drop_on_two_threads_at_once() {
+        for _ in 0..20 {
+            let mut path = Ancestry::default();
+            for i in 0..200_000u32 {
+                path.push(i);
+            }
+            let copies: Vec<Ancestry<u32>> = (0..8).map(|_| path.clone()).collect();
+            drop(path);
+            let (left, right) = copies.split_at(4);
+            let (left, right) = (left.to_vec(), right.to_vec());
+            std::thread::scope(|scope| {
+                scope.spawn(move || drop(left));
+                scope.spawn(move || drop(right));
+            });
+        }
     }
 }

@@ -46,7 +46,7 @@ pub(crate) struct ParticleSet<P, M> {
     pub resamplings: usize,
 }
 
-impl<P: RobotPose, M: Clone + Default> ParticleSet<P, M> {
+impl<P: RobotPose, M: Clone + Default + Send> ParticleSet<P, M> {
     /// `count` particles at `pose` spread by `pose_covariance` (`P::DIM` square; zero for a
     /// known start), with empty maps.
     pub(crate) fn new(
@@ -152,13 +152,17 @@ impl<P: RobotPose, M: Clone + Default> ParticleSet<P, M> {
         };
         self.draws += 1;
         let best = self.best;
-        self.particles = chosen
+        let resampled = chosen
             .iter()
             .map(|&i| Particle {
                 log_weight: 0.0,
                 ..self.particles[i].clone()
             })
             .collect();
+        // What only the old generation held (maps, paths) is freed on every thread.
+        std::mem::replace(&mut self.particles, resampled)
+            .into_par_iter()
+            .for_each(drop);
         self.best = chosen.iter().position(|&i| i == best).unwrap_or(0);
         self.resamplings += 1;
         true
@@ -171,9 +175,9 @@ impl<P: RobotPose, M: Clone + Default> ParticleSet<P, M> {
 
     /// Appends each particle's pose to its path (once per recorded step).
     pub(crate) fn end_step(&mut self) {
-        for particle in &mut self.particles {
-            particle.path.push(particle.pose);
-        }
+        self.particles
+            .par_iter_mut()
+            .for_each(|particle| particle.path.push(particle.pose));
     }
 
     /// Every particle's pose and normalized weight.
@@ -283,20 +287,31 @@ pub(crate) fn weighted_mean<P: RobotPose>(
 ) -> (P, DMatrix<f64>) {
     let weights = normalized(log_weights);
     let reference = poses[best.min(poses.len() - 1)];
-    let differences: Vec<DVector<f64>> = poses
-        .iter()
-        .map(|p| DVector::from_vec(p.ominus(&reference)))
-        .collect();
-    let mut mean = DVector::zeros(P::DIM);
-    for (d, w) in differences.iter().zip(&weights) {
-        mean += d * *w;
+    let dim = P::DIM;
+    // The differences from the reference, one row of `dim` each, in one buffer.
+    let mut differences = Vec::with_capacity(poses.len() * dim);
+    for p in poses {
+        differences.extend(p.ominus(&reference));
     }
-    let mut cov = DMatrix::zeros(P::DIM, P::DIM);
-    for (d, w) in differences.iter().zip(&weights) {
-        let e = d - &mean;
-        cov += &e * e.transpose() * *w;
+    let mut mean = vec![0.0; dim];
+    for (d, w) in differences.chunks_exact(dim).zip(&weights) {
+        for (m, d) in mean.iter_mut().zip(d) {
+            *m += d * w;
+        }
     }
-    let pose = reference.oplus(mean.as_slice()).unwrap_or(reference);
+    let mut cov = DMatrix::zeros(dim, dim);
+    let mut e = vec![0.0; dim];
+    for (d, w) in differences.chunks_exact(dim).zip(&weights) {
+        for ((e, d), m) in e.iter_mut().zip(d).zip(&mean) {
+            *e = d - m;
+        }
+        for j in 0..dim {
+            for i in 0..dim {
+                cov[(i, j)] += e[i] * e[j] * w;
+            }
+        }
+    }
+    let pose = reference.oplus(&mean).unwrap_or(reference);
     (pose, cov)
 }
 

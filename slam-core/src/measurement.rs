@@ -422,15 +422,7 @@ pub fn linearize_at(
     let innovation = measurement.innovation_dyn(feature, &seen.x_o)?;
     let d_eta_d_sensor = small_product(&innovation.d_eta_d_xo, &seen.d_xo_d_sensor);
     let d_eta_d_xf = small_product(&innovation.d_eta_d_xo, &seen.d_xo_d_xm);
-    let dual = feature.dual()?;
-    if dual.nrows() != d_eta_d_xf.ncols() {
-        return Err(Error::DimensionMismatch {
-            what: "B~ rows (dim x_f)".into(),
-            expected: d_eta_d_xf.ncols(),
-            got: dual.nrows(),
-        });
-    }
-    let d_eta_d_own = small_product(&d_eta_d_xf, &dual);
+    let d_eta_d_own = own_columns(feature, &d_eta_d_xf)?;
     let coordinates = feature.coordinates();
     let d_eta_d_shared = (0..coordinates.num_blocks())
         .filter(|&k| feature.is_shared(k))
@@ -440,19 +432,77 @@ pub fn linearize_at(
             (k, d_eta_d_xf.columns(offset, width).into_owned())
         })
         .collect();
-    let d_eta_d_v_cov = small_product(&innovation.d_eta_d_v, &innovation.cov_v);
-    let cov_eta = DMatrix::from_fn(innovation.dim(), innovation.dim(), |i, j| {
-        (0..d_eta_d_v_cov.ncols())
-            .map(|k| d_eta_d_v_cov[(i, k)] * innovation.d_eta_d_v[(j, k)])
-            .sum()
-    });
     Ok(LinearizedMeasurement {
-        cov_eta,
+        cov_eta: measurement_covariance(&innovation),
         d_eta_d_robot: small_product(&d_eta_d_sensor, &frame.pose.d_sensor_d_robot),
         d_eta_d_sensor,
         d_eta_d_own,
         d_eta_d_shared,
         d_eta_d_xf,
+        eta: innovation.eta,
+    })
+}
+
+/// `J_eta_o J_of B~` from `J_eta_f = J_eta_o J_of`: the columns of the feature's own
+/// M-space perturbation.
+fn own_columns(feature: &dyn Feature, d_eta_d_xf: &DMatrix<f64>) -> Result<DMatrix<f64>> {
+    let dual = feature.dual()?;
+    if dual.nrows() != d_eta_d_xf.ncols() {
+        return Err(Error::DimensionMismatch {
+            what: "B~ rows (dim x_f)".into(),
+            expected: d_eta_d_xf.ncols(),
+            got: dual.nrows(),
+        });
+    }
+    Ok(small_product(d_eta_d_xf, &dual))
+}
+
+/// `C_eta = J_eta_v C_v J_eta_v^T`.
+fn measurement_covariance(innovation: &Innovation) -> DMatrix<f64> {
+    let d_eta_d_v_cov = small_product(&innovation.d_eta_d_v, &innovation.cov_v);
+    DMatrix::from_fn(innovation.dim(), innovation.dim(), |i, j| {
+        (0..d_eta_d_v_cov.ncols())
+            .map(|k| d_eta_d_v_cov[(i, k)] * innovation.d_eta_d_v[(j, k)])
+            .sum()
+    })
+}
+
+/// What a filter over one feature alone needs of a linearization (FastSLAM's landmark
+/// filters, where the robot pose is given): the fields of [`LinearizedMeasurement`] of the
+/// same name, equal to them bit for bit, without the robot and sensor columns.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OwnLinearization {
+    /// `eta` at the current estimate.
+    pub eta: DVector<f64>,
+    /// `C_eta = J_eta_v C_v J_eta_v^T`.
+    pub cov_eta: DMatrix<f64>,
+    /// `J_eta_o J_of B~`: with respect to the feature's own M-space perturbation.
+    pub d_eta_d_own: DMatrix<f64>,
+}
+
+/// [`linearize_at`] reduced to [`OwnLinearization`]: the innovation, its covariance and the
+/// feature's own columns (eqs. 16, 19 and 21 without `J_os`), with the sensor's
+/// map-to-sensor transform made beforehand.
+///
+/// ```
+/// use slam_core::{linearize_at, linearize_own_at, Pose2, Pose3, SensorFrame};
+/// # fn demo(measurement: &dyn slam_core::DynMeasurementModel, feature: &dyn slam_core::Feature) -> slam_core::Result<()> {
+/// let frame = SensorFrame::new(&Pose2::new(1.0, 0.0, 0.3), &Pose3::identity())?;
+/// let own = linearize_own_at(measurement, feature, &frame.to_sensor)?;
+/// assert_eq!(own.d_eta_d_own, linearize_at(measurement, feature, &frame)?.d_eta_d_own);
+/// # Ok(()) }
+/// ```
+pub fn linearize_own_at(
+    measurement: &dyn DynMeasurementModel,
+    feature: &dyn Feature,
+    to_sensor: &MapToSensor,
+) -> Result<OwnLinearization> {
+    let (x_o, d_xo_d_xm) = to_sensor.transform_with_feature_jacobian(feature.coordinates())?;
+    let innovation = measurement.innovation_dyn(feature, &x_o)?;
+    let d_eta_d_xf = small_product(&innovation.d_eta_d_xo, &d_xo_d_xm);
+    Ok(OwnLinearization {
+        d_eta_d_own: own_columns(feature, &d_eta_d_xf)?,
+        cov_eta: measurement_covariance(&innovation),
         eta: innovation.eta,
     })
 }

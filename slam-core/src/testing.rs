@@ -23,6 +23,7 @@ use crate::coords::CoordBlock;
 use crate::feature::Feature;
 use crate::measurement::{
     DynMeasurementModel, MeasurementModel, SensorFrame, innovation_at, linearize, linearize_at,
+    linearize_own_at,
 };
 use crate::pose::{Pose2, Pose3, RobotPose};
 use crate::transform::MapToSensor;
@@ -780,6 +781,19 @@ pub fn check_measurement<M: MeasurementModel>(
         .or_else(|e| fail("3-D sensor frame", cfg, e.to_string()))?;
     let lin_3d = linearize_at(dyn_model, feature, &frame_3d)
         .or_else(|e| fail("linearize_at (3-D robot)", cfg, e.to_string()))?;
+    // The reduced linearization of a filter over the feature alone: the same numbers.
+    let own = linearize_own_at(dyn_model, feature, &frame_3d.to_sensor)
+        .or_else(|e| fail("linearize_own_at", cfg, e.to_string()))?;
+    if own.eta != lin_3d.eta
+        || own.cov_eta != lin_3d.cov_eta
+        || own.d_eta_d_own != lin_3d.d_eta_d_own
+    {
+        return fail(
+            "linearize_own_at",
+            cfg,
+            format!("differs from linearize_at: {own:?} against {lin_3d:?}"),
+        );
+    }
     let robot_3d = lin_3d.d_eta_d_robot.select_columns(&[0, 1, 3]);
     for (what, planar, general) in [
         (

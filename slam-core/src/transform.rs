@@ -171,6 +171,29 @@ impl MapToSensor {
         Coordinates::new(blocks)
     }
 
+    /// `x_o` with `J_of` alone (eq. 19): what a filter over the feature alone needs.
+    pub fn transform_with_feature_jacobian(
+        &self,
+        x_m: &Coordinates,
+    ) -> Result<(Coordinates, DMatrix<f64>)> {
+        let dim = x_m.dim();
+        let mut d_xo_d_xm = DMatrix::zeros(dim, dim);
+        let mut row = 0;
+        for block in x_m.blocks() {
+            match block {
+                CoordBlock::Point3(_) => d_xo_d_xm
+                    .view_mut((row, row), (3, 3))
+                    .copy_from(&self.sensor_from_world_3d),
+                CoordBlock::Point2(_) => d_xo_d_xm
+                    .view_mut((row, row), (2, 2))
+                    .copy_from(&self.scan_plane()?.sensor_from_world_2d),
+                CoordBlock::Scalar(_) => d_xo_d_xm[(row, row)] = 1.0,
+            }
+            row += block.dim();
+        }
+        Ok((self.transform(x_m)?, d_xo_d_xm))
+    }
+
     /// `x_o` with `J_os` and `J_of` (eq. 19).
     pub fn transform_with_jacobians(&self, x_m: &Coordinates) -> Result<SensorFrameCoordinates> {
         let dim = x_m.dim();

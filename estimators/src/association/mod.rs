@@ -200,18 +200,38 @@ pub(crate) fn candidate_features<'a, K>(
     margin: f64,
     skips: &mut Skips,
 ) -> Vec<(K, &'a dyn Feature, Coordinates)> {
-    let near = match measurement.initial_feature_dyn(world_from_sensor) {
-        Ok(feature) => feature.map(|f| BoundingBox::of(f.coordinates())),
-        Err(_) => {
-            skips.count("association: no feature placed from the observation (no spatial filter)");
-            None
-        }
-    };
     let to_sensor = match MapToSensor::new(world_from_sensor) {
         Ok(t) => t,
         Err(_) => {
             skips.count("association: sensor pose has no map-to-sensor transform");
             return Vec::new();
+        }
+    };
+    candidate_features_in(
+        features,
+        measurement,
+        world_from_sensor,
+        &to_sensor,
+        margin,
+        skips,
+    )
+}
+
+/// [`candidate_features`] with the map-to-sensor transform of `world_from_sensor` made
+/// beforehand (a [`slam_core::SensorFrame`]'s).
+pub(crate) fn candidate_features_in<'a, K>(
+    features: impl Iterator<Item = (K, &'a dyn Feature)>,
+    measurement: &dyn DynMeasurementModel,
+    world_from_sensor: &Pose3,
+    to_sensor: &MapToSensor,
+    margin: f64,
+    skips: &mut Skips,
+) -> Vec<(K, &'a dyn Feature, Coordinates)> {
+    let near = match measurement.initial_feature_dyn(world_from_sensor) {
+        Ok(feature) => feature.map(|f| BoundingBox::of(f.coordinates())),
+        Err(_) => {
+            skips.count("association: no feature placed from the observation (no spatial filter)");
+            None
         }
     };
     let mut out = Vec::new();

@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{
-    DynMeasurementModel, Feature, FeatureMap, LinearizedMeasurement, Observation, Pose3, Result,
-    RobotPose, SensorFrame, Skips, linearize, linearize_at,
+    DynMeasurementModel, Feature, FeatureMap, Observation, OwnLinearization, Pose3, Result,
+    RobotPose, SensorFrame, Skips, linearize_own_at,
 };
 
 use super::small;
@@ -75,11 +75,11 @@ impl<P: RobotPose> Landmark<P> {
         &self,
         observation: &Observation,
         frame: &SensorFrame,
-    ) -> Option<LinearizedMeasurement> {
-        linearize_at(
+    ) -> Option<OwnLinearization> {
+        linearize_own_at(
             observation.measurement.as_ref(),
             self.feature.as_ref(),
-            frame,
+            &frame.to_sensor,
         )
         .ok()
     }
@@ -87,7 +87,7 @@ impl<P: RobotPose> Landmark<P> {
     /// `(ln N(eta; 0, S), eta^T S^-1 eta, dim eta)` of a measurement of this feature
     /// linearized as `lin`; `S = H P H^T + C_eta`, or `2 C_eta` for a tentative feature.
     /// `None` when `S` is not positive definite.
-    pub(super) fn likelihood(&self, lin: &LinearizedMeasurement) -> Option<(f64, f64, usize)> {
+    pub(super) fn likelihood(&self, lin: &OwnLinearization) -> Option<(f64, f64, usize)> {
         let dof = lin.eta.len();
         if self.feature.mspace_dim() == 0 {
             if let Some(small) = small::log_likelihood(
@@ -126,7 +126,10 @@ impl<P: RobotPose> Landmark<P> {
         if n == 0 || self.cov.shape() != (n, n) {
             return Ok(());
         }
-        let Ok(lin) = linearize(measurement, self.feature.as_ref(), pose, robot_from_sensor) else {
+        let lin = SensorFrame::new(pose, robot_from_sensor).and_then(|frame| {
+            linearize_own_at(measurement, self.feature.as_ref(), &frame.to_sensor)
+        });
+        let Ok(lin) = lin else {
             skips.count("update: linearization failed");
             return Ok(());
         };
@@ -136,7 +139,7 @@ impl<P: RobotPose> Landmark<P> {
 
     /// [`Landmark::update`] with the measurement already linearized at this feature (as it
     /// is now) from the sensor's pose.
-    pub(super) fn update_linearized(&mut self, lin: &LinearizedMeasurement, skips: &mut Skips) {
+    pub(super) fn update_linearized(&mut self, lin: &OwnLinearization, skips: &mut Skips) {
         let n = self.feature.mspace_dim();
         if n == 0 || self.cov.shape() != (n, n) {
             return;
@@ -161,7 +164,7 @@ impl<P: RobotPose> Landmark<P> {
     /// `dx = -K eta` and the Joseph-form covariance `(I - K H) P (I - K H)^T + K C K^T`
     /// (symmetrized) for `K = P H^T S^-1`, `S = H P H^T + C`; on the stack for small sizes.
     /// `None` when `S` is not positive definite.
-    fn ekf_step(&self, lin: &LinearizedMeasurement) -> Option<(DVector<f64>, DMatrix<f64>)> {
+    fn ekf_step(&self, lin: &OwnLinearization) -> Option<(DVector<f64>, DMatrix<f64>)> {
         let (h, p, c) = (&lin.d_eta_d_own, &self.cov, &lin.cov_eta);
         if let Some(small) = small::update(&lin.eta, c, h, p) {
             return small;

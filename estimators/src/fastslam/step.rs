@@ -12,7 +12,8 @@ use slam_core::{
 use super::landmark::{Landmark, LandmarkMap};
 use super::{FastSlamParams, Proposal};
 use crate::association::{
-    BoundingBox, Candidate, Choice, Gates, associate, candidate_features, crowded, sort_by_distance,
+    BoundingBox, Candidate, Choice, Gates, associate, candidate_features_in, crowded,
+    sort_by_distance,
 };
 use crate::lifecycle::{Sighting, Track};
 use crate::particles::{Particle, log_normal};
@@ -86,6 +87,10 @@ pub(super) struct ParticleStep<'a, 'c, P: RobotPose> {
     pub weighted: Vec<bool>,
     /// The particle's random stream for this step (FastSLAM 2.0).
     pub rng: ChaCha8Rng,
+    /// Each observation's sensor frame at `frames_pose`, made for the association.
+    frames: Vec<Option<SensorFrame>>,
+    /// The particle's pose when the frames were made.
+    frames_pose: Option<P>,
 }
 
 impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
@@ -101,6 +106,19 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             log_likelihood: 0.0,
             weighted: Vec::new(),
             rng,
+            frames: Vec::new(),
+            frames_pose: None,
+        }
+    }
+
+    /// The sensor frame of observation `index` at the particle's pose: the association's
+    /// (taken: each observation is paired once) while the pose has not moved since, else a
+    /// new one.
+    fn frame(&mut self, index: usize, observation: &Observation) -> Option<SensorFrame> {
+        let made = self.frames.get_mut(index).and_then(Option::take);
+        match made {
+            Some(frame) if self.frames_pose == Some(self.particle.pose) => Some(frame),
+            _ => SensorFrame::new(&self.particle.pose, &observation.robot_from_sensor).ok(),
         }
     }
 
@@ -139,7 +157,13 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         let mut open = Vec::new();
         let mut lists = Vec::new();
         let particle: &Particle<P, LandmarkMap<P>> = self.particle;
-        let nearby = near_any(particle, self.context, observations);
+        self.frames = observations
+            .iter()
+            .map(|o| SensorFrame::new(&particle.pose, &o.robot_from_sensor).ok())
+            .collect();
+        self.frames_pose = Some(particle.pose);
+        let frames = &self.frames;
+        let nearby = near_any(particle, self.context, observations, frames);
         for (index, observation) in observations.iter().enumerate() {
             match observation.landmark_id {
                 Some(id) => decisions.push(Some(match particle.map.ids.get(&id) {
@@ -154,6 +178,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
                         self.context,
                         &mut self.report,
                         observation,
+                        frames[index].as_ref(),
                         &nearby,
                     ));
                 }
@@ -216,13 +241,12 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
     /// extension.
     fn pair(&mut self, slot: usize, index: usize, observation: &Observation) -> Result<()> {
         let pose = self.particle.pose;
+        let frame = self.frame(index, observation);
         let Some(landmark) = self.particle.map.landmarks.get(slot) else {
             self.report.rejected += 1;
             return Ok(());
         };
-        let lin = SensorFrame::new(&pose, &observation.robot_from_sensor)
-            .ok()
-            .and_then(|frame| landmark.linearize(observation, &frame));
+        let lin = frame.and_then(|frame| landmark.linearize(observation, &frame));
         let likelihood = lin.as_ref().and_then(|lin| landmark.likelihood(lin));
         let (Some(lin), Some((log_likelihood, d2, dof))) = (lin, likelihood) else {
             self.report.rejected += 1;
@@ -376,18 +400,21 @@ fn near_any<'f, P: RobotPose>(
     particle: &'f Particle<P, LandmarkMap<P>>,
     context: &StepContext<'_>,
     observations: &[Observation],
+    frames: &[Option<SensorFrame>],
 ) -> Vec<(usize, &'f dyn Feature)> {
     let landmarks = &particle.map.landmarks;
     let mut reach = BoundingBox::default();
-    for observation in observations.iter().filter(|o| o.landmark_id.is_none()) {
-        let world_from_sensor = particle
-            .pose
-            .world_from_sensor(&observation.robot_from_sensor);
-        match observation
-            .measurement
-            .initial_feature_dyn(&world_from_sensor)
-        {
-            Ok(Some(feature)) => reach.include(&BoundingBox::of(feature.coordinates())),
+    for (observation, frame) in observations.iter().zip(frames) {
+        if observation.landmark_id.is_some() {
+            continue;
+        }
+        let placed = frame.as_ref().map(|frame| {
+            observation
+                .measurement
+                .initial_feature_dyn(frame.world_from_sensor())
+        });
+        match placed {
+            Some(Ok(Some(feature))) => reach.include(&BoundingBox::of(feature.coordinates())),
             _ => {
                 return landmarks
                     .iter()
@@ -414,19 +441,21 @@ fn candidates<'f, P: RobotPose>(
     context: &StepContext<'_>,
     report: &mut UpdateReport,
     observation: &Observation,
+    frame: Option<&SensorFrame>,
     nearby: &[(usize, &'f dyn Feature)],
 ) -> Vec<Candidate<f64>> {
-    let Ok(frame) = SensorFrame::new(&particle.pose, &observation.robot_from_sensor) else {
+    let Some(frame) = frame else {
         report
             .skipped
             .count("association: sensor pose has no map-to-sensor transform");
         return Vec::new();
     };
     let landmarks = &particle.map.landmarks;
-    let near = candidate_features(
+    let near = candidate_features_in(
         nearby.iter().copied(),
         observation.measurement.as_ref(),
         frame.world_from_sensor(),
+        &frame.to_sensor,
         context.params.association_margin,
         &mut report.skipped,
     );
@@ -436,7 +465,7 @@ fn candidates<'f, P: RobotPose>(
             continue;
         };
         let likelihood = landmark
-            .linearize(observation, &frame)
+            .linearize(observation, frame)
             .and_then(|lin| landmark.likelihood(&lin));
         let Some((log_likelihood, d2, dof)) = likelihood else {
             report

@@ -6,7 +6,8 @@ use std::sync::Arc;
 use rand_chacha::ChaCha8Rng;
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{
-    DynMeasurementModel, Feature, Observation, Result, RobotPose, SensorFrame, UpdateReport,
+    DynMeasurementModel, Feature, MapToSensor, Observation, Result, RobotPose, SensorFrame,
+    UpdateReport,
 };
 
 use super::landmark::{Landmark, LandmarkMap};
@@ -246,7 +247,9 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             self.report.rejected += 1;
             return Ok(());
         };
-        let lin = frame.and_then(|frame| landmark.linearize(observation, &frame));
+        let lin = frame
+            .as_ref()
+            .and_then(|frame| landmark.linearize(observation, frame));
         let likelihood = lin.as_ref().and_then(|lin| landmark.likelihood(lin));
         let (Some(lin), Some((log_likelihood, d2, dof))) = (lin, likelihood) else {
             self.report.rejected += 1;
@@ -269,7 +272,16 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             return Ok(());
         };
         // As in the EKF: sighting and growth first, then one update on the (new) rows.
-        sight(landmark, context, index, observation, &pose, skips)?;
+        let to_sensor = frame.as_ref().map(|f| &f.to_sensor);
+        sight(
+            landmark,
+            context,
+            index,
+            observation,
+            &pose,
+            to_sensor,
+            skips,
+        )?;
         let grown = landmark.grow(observation, &context.params.lifecycle_settings(), skips)?;
         if grown {
             // New rows: linearized again at the grown feature.
@@ -315,7 +327,15 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         self.count_new_feature_likelihood(&landmark, observation, &pose)?;
         let context = self.context;
         let skips = &mut self.report.skipped;
-        sight(&mut landmark, context, index, observation, &pose, skips)?;
+        sight(
+            &mut landmark,
+            context,
+            index,
+            observation,
+            &pose,
+            None,
+            skips,
+        )?;
         if landmark.grow(observation, &context.params.lifecycle_settings(), skips)? {
             landmark.update(
                 observation.measurement.as_ref(),
@@ -493,6 +513,7 @@ fn sight<P: RobotPose>(
     index: usize,
     observation: &Observation,
     pose: &P,
+    to_sensor: Option<&MapToSensor>,
     skips: &mut slam_core::Skips,
 ) -> Result<()> {
     let sighting = Sighting {
@@ -501,7 +522,7 @@ fn sight<P: RobotPose>(
         step: context.step,
         view_measurement: context.shared.get(index).cloned().flatten(),
         pose_covariance: None,
-        to_sensor: None,
+        to_sensor,
     };
     landmark.track.sight(
         landmark.feature.as_ref(),

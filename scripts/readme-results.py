@@ -15,6 +15,7 @@ Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
   consistency        slam consistency, seeds 1-50 both wall kinds, 101-150 M-space ~5 min
   particle-builtin   slam run with fastslam (100 particles) and ipslam            ~20 s
   victoria-park      slam run --data victoria-park:...                            ~7 s
+  victoria-park-fastslam  FastSLAM 2.0 on Victoria Park, 100 and 1000 particles  ~4 min
   em-polygon-intel   the em-polygon stage on the Intel lab's corrected poses       ~3 s
   mrclam             slam run --data mrclam:...:1                                  ~1 s
   ipslam-intel       IPSLAM on the Intel lab, odometry seeds 1-3 and paper settings ~5 min
@@ -22,11 +23,12 @@ Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
 
 Not regenerated here (their own scripts run other programs or take tens of minutes; the
 README names the script and commit beside each): the rb2d row
-(../shared/peers/bench-ekf-vs-kfslam.sh, MRPT), Victoria Park FastSLAM (1000 particles:
-minutes), the Radish CARMEN logs beside MRPT (scripts/real-buildings.sh).
+(../shared/peers/bench-ekf-vs-kfslam.sh, MRPT), the Radish CARMEN logs beside MRPT
+(scripts/real-buildings.sh).
 
-Run times are machine figures: a --check of a row with one (victoria-park) fails whenever the
-time moves; read it as "regenerate", not as a regression.
+Run times are machine figures: a --check of a row with one (victoria-park,
+victoria-park-fastslam) fails whenever the time moves; read it as "regenerate", not as a
+regression.
 """
 
 import argparse
@@ -115,6 +117,28 @@ def victoria_park(work):
     )
 
 
+def victoria_park_fastslam(work):
+    data = ["--data", f"victoria-park:{DATA / 'victoria-park'}"]
+    runs = [
+        metrics(
+            slam(
+                ["run"],
+                work,
+                f"vp-fastslam-{n}",
+                f'[estimator]\ntype = "fastslam"\nparticles = {n}\nproposal = "improved"\n',
+                extra=data,
+            )
+        )
+        for n in (100, 1000)
+    ]
+    ates = " / ".join(f"{m['ate_rmse_m']:.1f} m" for m in runs)
+    ratios = " / ".join(f"{m['wall_time_s'] / 1560:.3f}" for m in runs)
+    times = " / ".join(f"{m['wall_time_s']:.0f} s" for m in runs)
+    return (
+        f"{ates}; {ratios} of real time ({times}, 2 cores; FastSLAM 1.0: see BENCHMARKS.md)"
+    )
+
+
 def em_polygon_intel(work):
     log = DATA / "radish-carmen-corrected" / "intel-corrected.log.gz"
     config = (
@@ -185,6 +209,10 @@ ROWS = {
         particle_builtin,
     ),
     "victoria-park": ("Victoria Park, whole run", victoria_park),
+    "victoria-park-fastslam": (
+        'Victoria Park, FastSLAM 2.0 (`proposal = "improved"`) 100 / 1000 particles',
+        victoria_park_fastslam,
+    ),
     "em-polygon-intel": (
         'Intel lab, corrected poses (`[[postprocess]] type = "em-polygon"`, `poses = "given"`)',
         em_polygon_intel,

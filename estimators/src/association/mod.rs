@@ -200,37 +200,61 @@ pub(crate) fn candidate_features<'a, K>(
     margin: f64,
     skips: &mut Skips,
 ) -> Vec<(K, &'a dyn Feature, Coordinates)> {
+    let placed = placed_box(measurement, world_from_sensor);
     let to_sensor = match MapToSensor::new(world_from_sensor) {
         Ok(t) => t,
         Err(_) => {
+            if matches!(placed, Placed::Failed) {
+                skips.count(NOT_PLACED);
+            }
             skips.count("association: sensor pose has no map-to-sensor transform");
             return Vec::new();
         }
     };
-    candidate_features_in(
-        features,
-        measurement,
-        world_from_sensor,
-        &to_sensor,
-        margin,
-        skips,
-    )
+    candidate_features_in(features, measurement, &placed, &to_sensor, margin, skips)
 }
 
-/// [`candidate_features`] with the map-to-sensor transform of `world_from_sensor` made
-/// beforehand (a [`slam_core::SensorFrame`]'s).
+/// Skip reason of an observation that places no feature (so no spatial filter for it).
+const NOT_PLACED: &str = "association: no feature placed from the observation (no spatial filter)";
+
+/// Where the feature an observation would start lies.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Placed {
+    /// Within this box.
+    At(BoundingBox),
+    /// The observation starts no feature.
+    Nowhere,
+    /// The feature could not be placed.
+    Failed,
+}
+
+/// Where the feature `measurement` would start from `world_from_sensor` lies.
+pub(crate) fn placed_box(
+    measurement: &dyn DynMeasurementModel,
+    world_from_sensor: &Pose3,
+) -> Placed {
+    match measurement.initial_feature_dyn(world_from_sensor) {
+        Ok(Some(feature)) => Placed::At(BoundingBox::of(feature.coordinates())),
+        Ok(None) => Placed::Nowhere,
+        Err(_) => Placed::Failed,
+    }
+}
+
+/// [`candidate_features`] with the map-to-sensor transform and the [`placed_box`] of the
+/// sensor pose made beforehand (a [`slam_core::SensorFrame`]'s, once per step).
 pub(crate) fn candidate_features_in<'a, K>(
     features: impl Iterator<Item = (K, &'a dyn Feature)>,
     measurement: &dyn DynMeasurementModel,
-    world_from_sensor: &Pose3,
+    placed: &Placed,
     to_sensor: &MapToSensor,
     margin: f64,
     skips: &mut Skips,
 ) -> Vec<(K, &'a dyn Feature, Coordinates)> {
-    let near = match measurement.initial_feature_dyn(world_from_sensor) {
-        Ok(feature) => feature.map(|f| BoundingBox::of(f.coordinates())),
-        Err(_) => {
-            skips.count("association: no feature placed from the observation (no spatial filter)");
+    let near = match placed {
+        Placed::At(near) => Some(near),
+        Placed::Nowhere => None,
+        Placed::Failed => {
+            skips.count(NOT_PLACED);
             None
         }
     };
@@ -239,7 +263,7 @@ pub(crate) fn candidate_features_in<'a, K>(
         if !measurement.accepts(feature) {
             continue;
         }
-        if let Some(near) = &near
+        if let Some(near) = near
             && !BoundingBox::of(feature.coordinates()).near(near, margin)
         {
             continue;

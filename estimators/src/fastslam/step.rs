@@ -13,8 +13,8 @@ use slam_core::{
 use super::landmark::{Landmark, LandmarkMap};
 use super::{FastSlamParams, Proposal};
 use crate::association::{
-    BoundingBox, Candidate, Choice, Gates, associate, candidate_features_in, crowded,
-    sort_by_distance,
+    BoundingBox, Candidate, Choice, Gates, Placed, associate, candidate_features_in, crowded,
+    placed_box, sort_by_distance,
 };
 use crate::lifecycle::{Sighting, Track};
 use crate::particles::{Particle, log_normal};
@@ -164,7 +164,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             .collect();
         self.frames_pose = Some(particle.pose);
         let frames = &self.frames;
-        let nearby = near_any(particle, self.context, observations, frames);
+        let (nearby, placed) = near_any(particle, self.context, observations, frames);
         for (index, observation) in observations.iter().enumerate() {
             match observation.landmark_id {
                 Some(id) => decisions.push(Some(match particle.map.ids.get(&id) {
@@ -180,6 +180,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
                         &mut self.report,
                         observation,
                         frames[index].as_ref(),
+                        &placed[index],
                         &nearby,
                     ));
                 }
@@ -415,41 +416,51 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
 /// The particle's features, in slot order, whose bounding box lies within the association
 /// margin of the box of every feature the step's observations without an id would start: one
 /// search of the map's boxes per step instead of a pass over the map per observation. All of
-/// them when one of those observations places no feature (no spatial filter for it).
+/// them when one of those observations places no feature (no spatial filter for it). Also
+/// each observation's [`placed_box`] (`Nowhere` for those with an id), for the candidates.
 fn near_any<'f, P: RobotPose>(
     particle: &'f Particle<P, LandmarkMap<P>>,
     context: &StepContext<'_>,
     observations: &[Observation],
     frames: &[Option<SensorFrame>],
-) -> Vec<(usize, &'f dyn Feature)> {
-    let landmarks = &particle.map.landmarks;
+) -> (Vec<(usize, &'f dyn Feature)>, Vec<Placed>) {
+    let placed: Vec<Placed> = observations
+        .iter()
+        .zip(frames)
+        .map(|(observation, frame)| match frame {
+            Some(frame) if observation.landmark_id.is_none() => {
+                placed_box(observation.measurement.as_ref(), frame.world_from_sensor())
+            }
+            _ => Placed::Nowhere,
+        })
+        .collect();
     let mut reach = BoundingBox::default();
-    for (observation, frame) in observations.iter().zip(frames) {
+    let mut filtered = true;
+    for ((observation, frame), placed) in observations.iter().zip(frames).zip(&placed) {
         if observation.landmark_id.is_some() {
             continue;
         }
-        let placed = frame.as_ref().map(|frame| {
-            observation
-                .measurement
-                .initial_feature_dyn(frame.world_from_sensor())
-        });
-        match placed {
-            Some(Ok(Some(feature))) => reach.include(&BoundingBox::of(feature.coordinates())),
-            _ => {
-                return landmarks
-                    .iter()
-                    .map(|(slot, l)| (slot, l.feature.as_ref()))
-                    .collect();
-            }
+        match (frame, placed) {
+            (Some(_), Placed::At(near)) => reach.include(near),
+            _ => filtered = false,
         }
     }
-    let margin = context.params.association_margin;
-    // A subtree's box is near the reach whenever one of its features' boxes is.
-    landmarks
-        .iter_where(|bbox| bbox.near(&reach, margin))
-        .into_iter()
-        .map(|(slot, l)| (slot, l.feature.as_ref()))
-        .collect()
+    let landmarks = &particle.map.landmarks;
+    let nearby = if filtered {
+        let margin = context.params.association_margin;
+        // A subtree's box is near the reach whenever one of its features' boxes is.
+        landmarks
+            .iter_where(|bbox| bbox.near(&reach, margin))
+            .into_iter()
+            .map(|(slot, l)| (slot, l.feature.as_ref()))
+            .collect()
+    } else {
+        landmarks
+            .iter()
+            .map(|(slot, l)| (slot, l.feature.as_ref()))
+            .collect()
+    };
+    (nearby, placed)
 }
 
 /// The particle's features an observation without an id can be of, with their
@@ -462,6 +473,7 @@ fn candidates<'f, P: RobotPose>(
     report: &mut UpdateReport,
     observation: &Observation,
     frame: Option<&SensorFrame>,
+    placed: &Placed,
     nearby: &[(usize, &'f dyn Feature)],
 ) -> Vec<Candidate<f64>> {
     let Some(frame) = frame else {
@@ -474,7 +486,7 @@ fn candidates<'f, P: RobotPose>(
     let near = candidate_features_in(
         nearby.iter().copied(),
         observation.measurement.as_ref(),
-        frame.world_from_sensor(),
+        placed,
         &frame.to_sensor,
         context.params.association_margin,
         &mut report.skipped,

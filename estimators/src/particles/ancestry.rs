@@ -1,14 +1,18 @@
 //! A particle's path: its pose at every recorded step, shared with its ancestors' after
 //! resampling (a persistent list of `Arc`s), so that copying a particle is O(1) and the
 //! particles' paths together cost memory only where they differ.
+//!
+//! A node holds the poses a particle recorded while it owned the node alone (between two
+//! resamplings): a push appends in place when no other path shares the last node, and starts
+//! a node only when one does, so a path costs an allocation per resampling, not per pose.
 
 use std::sync::Arc;
 
-/// One recorded pose and the path before it.
+/// Poses recorded in a row and the path before them.
 #[derive(Debug)]
 struct Node<P> {
-    pose: P,
-    /// Poses recorded up to and including this one.
+    poses: Vec<P>,
+    /// Poses recorded up to and including this node's.
     len: usize,
     before: Option<Arc<Node<P>>>,
 }
@@ -26,11 +30,20 @@ impl<P> Default for Ancestry<P> {
 }
 
 impl<P: Copy> Ancestry<P> {
-    /// Appends `pose`.
+    /// Appends `pose`: to the last node when this path alone holds it, else in a new node.
     pub(crate) fn push(&mut self, pose: P) {
+        if let Some(node) = self.last.as_mut().and_then(Arc::get_mut) {
+            node.poses.push(pose);
+            node.len += 1;
+            return;
+        }
         let before = self.last.take();
         let len = before.as_ref().map_or(0, |n| n.len) + 1;
-        self.last = Some(Arc::new(Node { pose, len, before }));
+        self.last = Some(Arc::new(Node {
+            poses: vec![pose],
+            len,
+            before,
+        }));
     }
 
     /// Number of recorded poses.
@@ -43,7 +56,7 @@ impl<P: Copy> Ancestry<P> {
         let mut poses = Vec::with_capacity(self.len());
         let mut node = self.last.as_deref();
         while let Some(n) = node {
-            poses.push(n.pose);
+            poses.extend(n.poses.iter().rev());
             node = n.before.as_deref();
         }
         poses.reverse();
@@ -91,7 +104,10 @@ mod tests {
     fn a_long_path_drops_without_overflowing_the_stack() {
         let mut path = Ancestry::default();
         for i in 0..1_000_000u32 {
+            // A copy held across the push makes every pose a node of its own.
+            let copy = path.clone();
             path.push(i);
+            drop(copy);
         }
         let shared = path.clone();
         assert_eq!(shared.len(), 1_000_000);
@@ -104,7 +120,10 @@ mod tests {
         for _ in 0..20 {
             let mut path = Ancestry::default();
             for i in 0..200_000u32 {
+                // A copy held across the push makes every pose a node of its own.
+                let copy = path.clone();
                 path.push(i);
+                drop(copy);
             }
             let copies: Vec<Ancestry<u32>> = (0..8).map(|_| path.clone()).collect();
             drop(path);
@@ -114,6 +133,29 @@ mod tests {
                 scope.spawn(move || drop(left));
                 scope.spawn(move || drop(right));
             });
+        }
+    }
+
+    #[test]
+    fn pushes_after_clones_keep_every_path_its_own() {
+        let mut paths = vec![Ancestry::default()];
+        let mut expected = vec![Vec::new()];
+        for step in 0..200u32 {
+            if step % 7 == 3 {
+                // "Resampling": every path replaced by a copy of one of them.
+                let chosen: Vec<usize> =
+                    (0..4).map(|k| (k * step as usize) % paths.len()).collect();
+                paths = chosen.iter().map(|&i| paths[i].clone()).collect();
+                expected = chosen.iter().map(|&i| expected[i].clone()).collect();
+            }
+            for (k, (path, poses)) in paths.iter_mut().zip(&mut expected).enumerate() {
+                path.push(step * 10 + k as u32);
+                poses.push(step * 10 + k as u32);
+            }
+        }
+        for (path, poses) in paths.iter().zip(&expected) {
+            assert_eq!(&path.to_vec(), poses);
+            assert_eq!(path.len(), poses.len());
         }
     }
 }

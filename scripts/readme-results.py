@@ -14,6 +14,7 @@ Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
   ekf-builtin        slam run (the built-in world, seed 1)                        ~1 s
   consistency        slam consistency, seeds 1-50 both wall kinds, 101-150 M-space ~5 min
   particle-builtin   slam run with fastslam (100 particles) and ipslam            ~20 s
+  rb2d-kfslam        ../shared/peers/bench-ekf-vs-kfslam.sh seeds 1-3 (MRPT)       ~40 s
   victoria-park      slam run --data victoria-park:...                            ~7 s
   victoria-park-fastslam  FastSLAM 2.0 on Victoria Park, 100 and 1000 particles  ~4 min
   em-polygon-intel   the em-polygon stage on the Intel lab's corrected poses       ~3 s
@@ -21,12 +22,11 @@ Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
   ipslam-intel       IPSLAM on the Intel lab, odometry seeds 1-3 and paper settings ~5 min
 `--rows cheap` is ekf-builtin; `--rows all` (the default) is every row above.
 
-Not regenerated here (their own scripts run other programs or take tens of minutes; the
-README names the script and commit beside each): the rb2d row
-(../shared/peers/bench-ekf-vs-kfslam.sh, MRPT), the Radish CARMEN logs beside MRPT
-(scripts/real-buildings.sh).
+Not regenerated here (it runs MRPT's grid SLAM on twelve logs, over an hour; the README names
+the script and commit beside it): the Radish CARMEN logs beside MRPT
+(scripts/real-buildings.sh). The rb2d row installs MRPT (Debian mrpt-apps) when missing.
 
-Run times are machine figures: a --check of a row with one (victoria-park,
+Run times are machine figures: a --check of a row with one (rb2d-kfslam, victoria-park,
 victoria-park-fastslam) fails whenever the time moves; read it as "regenerate", not as a
 regression.
 """
@@ -104,6 +104,31 @@ def particle_builtin(work):
         f"{cm(fs['ate_rmse_m'])} / {cm(fe['rms_m'])} ({cm(fe['median_m'])}); "
         f"{cm(ip['ate_rmse_m'])} / {ie['rms_m']:.2f} m ({cm(ie['median_m'])}), "
         f"{lines} PPCA lines"
+    )
+
+
+def rb2d_kfslam(work):
+    """Our EKF beside MRPT kf-slam on the same rb2d logs (seeds 1-3), by the peers' script."""
+    script = ROOT.parent / "shared" / "peers" / "bench-ekf-vs-kfslam.sh"
+    ratios, ates = [], []
+    for seed in (1, 2, 3):
+        command = [str(script), str(seed), "1000", "50", str(Path(ARGS.slam).resolve())]
+        result = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
+        last = result.stdout.strip().splitlines()[-1:] or [""]
+        if result.returncode != 0 or not last[0].startswith("ratio kf-slam/ours"):
+            sys.exit(f"readme-results: {' '.join(command)} failed:\n{result.stderr[-2000:]}")
+        # "ratio kf-slam/ours (per-step CPU) = R (median), R2 (min); ATE unaligned ours = A m,
+        # kf-slam = B m"
+        words = last[0].replace(",", " ").replace(";", " ").split()
+        ratios.append(float(words[words.index("=") + 1]))
+        numbers = [w for w in words if w.replace(".", "", 1).isdigit()]
+        ates.append((float(numbers[-2]), float(numbers[-1])))
+    ours, theirs = ates[0]
+    return (
+        f"{cm(ours)} (MRPT kf-slam: {cm(theirs)}), seed 1; per-step CPU "
+        f"{min(ratios):.1f}-{max(ratios):.1f} times lower than kf-slam's on the same file in "
+        "one run, seeds 1-3 (`../shared/peers/bench-ekf-vs-kfslam.sh SEED`, medians of 5 "
+        'interleaved runs; an earlier "ten times" compared runs of different days)'
     )
 
 
@@ -208,6 +233,7 @@ ROWS = {
         'built-in world, `type = "fastslam"` (100 particles) / `"ipslam"` (201)',
         particle_builtin,
     ),
+    "rb2d-kfslam": ("rb2d circle log, 1000 steps, 50 landmarks", rb2d_kfslam),
     "victoria-park": ("Victoria Park, whole run", victoria_park),
     "victoria-park-fastslam": (
         'Victoria Park, FastSLAM 2.0 (`proposal = "improved"`) 100 / 1000 particles',

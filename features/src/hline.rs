@@ -305,6 +305,11 @@ impl Feature for HLine {
         self.active.iter().map(|s| s.spec()).collect()
     }
 
+    /// The rows of the active subspaces, without collecting them.
+    fn mspace_dim(&self) -> usize {
+        self.active.iter().map(|s| s.spec().rows).sum()
+    }
+
     fn growth_options(&self) -> Vec<Subspace> {
         self.allowed_growth()
             .map(HLineSubspace::spec)

@@ -180,6 +180,12 @@ impl Feature for Pole {
         if self.full { vec![FULL] } else { Vec::new() }
     }
 
+    /// The rows of the active subspace, without collecting it (run for every candidate and
+    /// update).
+    fn mspace_dim(&self) -> usize {
+        if self.full { FULL.rows } else { 0 }
+    }
+
     fn growth_options(&self) -> Vec<Subspace> {
         if self.full { Vec::new() } else { vec![FULL] }
     }

@@ -630,6 +630,15 @@ impl RobotPose for Pose2 {
     }
 
     /// The default's arithmetic without its parameter vectors.
+    fn ominus(&self, other: &Self) -> Vec<f64> {
+        vec![
+            self.x - other.x,
+            self.y - other.y,
+            wrap_angle(self.theta - other.theta),
+        ]
+    }
+
+    /// The default's arithmetic without its parameter vectors.
     fn oplus(&self, delta: &[f64]) -> Result<Self> {
         match delta {
             [dx, dy, dtheta] => Ok(Pose2::new(self.x + dx, self.y + dy, self.theta + dtheta)),

@@ -411,6 +411,18 @@ fn grown(feature: &dyn Feature, configuration: &str) -> Check<Vec<Box<dyn Featur
                 ),
             );
         }
+        let active_rows: usize = next.active_subspaces().iter().map(|s| s.rows).sum();
+        if next.mspace_dim() != active_rows {
+            return fail(
+                "growth",
+                configuration,
+                format!(
+                    "dim {} after `{}` but the active subspaces have {active_rows} rows",
+                    next.mspace_dim(),
+                    option.name
+                ),
+            );
+        }
         if growth.why().is_empty() {
             return fail(
                 "growth",

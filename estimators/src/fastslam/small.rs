@@ -6,6 +6,8 @@
 
 use slam_core::nalgebra::{DMatrix, DVector, SMatrix, SVector};
 
+use crate::particles::log_normal;
+
 /// `(ln N(eta; 0, S), eta^T S^-1 eta)` with `S = H P H^T + C` (or `2 C` when `h` has no
 /// columns). `None` when the size is not a stack size; `Some(None)` when `S` is not positive
 /// definite or the value not finite.
@@ -26,10 +28,7 @@ pub(super) fn log_likelihood(
             }
         };
     }
-    if cov_eta.shape() != (eta.len(), eta.len())
-        || h.nrows() != eta.len()
-        || cov.shape() != (h.ncols(), h.ncols())
-    {
+    if !consistent(eta, cov_eta, h, cov) {
         return None;
     }
     sized!(1, 1; 1, 2; 1, 3; 1, 4; 2, 1; 2, 2; 2, 3; 2, 4; 3, 1; 3, 2; 3, 3; 3, 4)
@@ -52,20 +51,29 @@ pub(super) fn update(
             }
         };
     }
-    if cov_eta.shape() != (eta.len(), eta.len())
-        || h.nrows() != eta.len()
-        || cov.shape() != (h.ncols(), h.ncols())
-    {
+    if !consistent(eta, cov_eta, h, cov) {
         return None;
     }
     sized!(1, 1; 1, 2; 1, 3; 1, 4; 2, 1; 2, 2; 2, 3; 2, 4; 3, 1; 3, 2; 3, 3; 3, 4)
+}
+
+/// Whether the shapes chain: `eta` m, `C` m x m, `H` m x n, `P` n x n.
+fn consistent(
+    eta: &DVector<f64>,
+    cov_eta: &DMatrix<f64>,
+    h: &DMatrix<f64>,
+    cov: &DMatrix<f64>,
+) -> bool {
+    cov_eta.shape() == (eta.len(), eta.len())
+        && h.nrows() == eta.len()
+        && cov.shape() == (h.ncols(), h.ncols())
 }
 
 fn tentative<const M: usize>(eta: &DVector<f64>, cov_eta: &DMatrix<f64>) -> Option<(f64, f64)> {
     let c = SMatrix::<f64, M, M>::from_column_slice(cov_eta.as_slice());
     log_normal(
         &SVector::<f64, M>::from_column_slice(eta.as_slice()),
-        c * 2.0,
+        &(c * 2.0),
     )
 }
 
@@ -79,22 +87,7 @@ fn confirmed<const M: usize, const N: usize>(
     let p = SMatrix::<f64, N, N>::from_column_slice(cov.as_slice());
     let c = SMatrix::<f64, M, M>::from_column_slice(cov_eta.as_slice());
     let s = h * p * h.transpose() + c;
-    log_normal(&SVector::<f64, M>::from_column_slice(eta.as_slice()), s)
-}
-
-/// [`crate::particles::log_normal`] on stack matrices.
-fn log_normal<const M: usize>(eta: &SVector<f64, M>, s: SMatrix<f64, M, M>) -> Option<(f64, f64)> {
-    let cholesky = s.cholesky()?;
-    let d2 = eta.dot(&cholesky.solve(eta));
-    let log_det: f64 = 2.0
-        * cholesky
-            .l_dirty()
-            .diagonal()
-            .iter()
-            .map(|v| v.ln())
-            .sum::<f64>();
-    let value = -0.5 * (d2 + log_det + M as f64 * (2.0 * std::f64::consts::PI).ln());
-    value.is_finite().then_some((value, d2))
+    log_normal(&SVector::<f64, M>::from_column_slice(eta.as_slice()), &s)
 }
 
 fn step<const M: usize, const N: usize>(

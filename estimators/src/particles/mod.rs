@@ -12,7 +12,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal, Uniform};
 use rayon::prelude::*;
-use slam_core::nalgebra::{DMatrix, DVector};
+use slam_core::nalgebra::allocator::Allocator;
+use slam_core::nalgebra::{DMatrix, DVector, DefaultAllocator, Dim, OMatrix, OVector};
 use slam_core::{Error, MotionModel, Result, RobotPose};
 
 pub(crate) use ancestry::Ancestry;
@@ -207,8 +208,15 @@ pub(crate) fn stream(seed: u64, draw: u64, index: u64) -> ChaCha8Rng {
     rng
 }
 
-/// `ln N(eta; 0, s)` and `eta^T s^-1 eta`, `None` when `s` is not positive definite.
-pub(crate) fn log_normal(eta: &DVector<f64>, s: &DMatrix<f64>) -> Option<(f64, f64)> {
+/// `ln N(eta; 0, s)` and `eta^T s^-1 eta`, `None` when `s` is not positive definite; for
+/// dynamic and stack matrices alike.
+pub(crate) fn log_normal<D: Dim>(
+    eta: &OVector<f64, D>,
+    s: &OMatrix<f64, D, D>,
+) -> Option<(f64, f64)>
+where
+    DefaultAllocator: Allocator<D, D> + Allocator<D>,
+{
     let cholesky = s.clone().cholesky()?;
     let solved = cholesky.solve(eta);
     let d2 = eta.dot(&solved);

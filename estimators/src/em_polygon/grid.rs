@@ -292,22 +292,13 @@ impl PointGrid {
             (direction.x * half_along).abs() + (normal.x * half_across).abs(),
             (direction.y * half_along).abs() + (normal.y * half_across).abs(),
         );
-        let (i0, j0) = self.cells.cell_of(&(centre - reach));
-        let (i1, j1) = self.cells.cell_of(&(centre + reach));
         let mut count = 0;
-        for j in j0..=j1 {
-            let row = self.cells.index((0, j));
-            let (a, b) = (
-                self.start[row + i0] as usize,
-                self.start[row + i1 + 1] as usize,
-            );
-            for p in &self.points[a..b] {
-                let d = p - centre;
-                if d.dot(direction).abs() <= half_along && d.dot(&normal).abs() <= half_across {
-                    count += 1;
-                }
+        self.for_each_in_box(centre, &reach, |p| {
+            let d = p - centre;
+            if d.dot(direction).abs() <= half_along && d.dot(&normal).abs() <= half_across {
+                count += 1;
             }
-        }
+        });
         count
     }
 
@@ -318,21 +309,31 @@ impl PointGrid {
         radius: f64,
         mut visit: impl FnMut(&Vector2<f64>),
     ) {
-        let reach = Vector2::repeat(radius);
+        let radius_sq = radius * radius;
+        self.for_each_in_box(centre, &Vector2::repeat(radius), |p| {
+            if (p - centre).norm_squared() <= radius_sq {
+                visit(p);
+            }
+        });
+    }
+
+    /// Calls `visit` with every point of the cells that overlap the box `centre +- reach`,
+    /// row by row.
+    fn for_each_in_box(
+        &self,
+        centre: &Vector2<f64>,
+        reach: &Vector2<f64>,
+        mut visit: impl FnMut(&Vector2<f64>),
+    ) {
         let (i0, j0) = self.cells.cell_of(&(centre - reach));
         let (i1, j1) = self.cells.cell_of(&(centre + reach));
-        let radius_sq = radius * radius;
         for j in j0..=j1 {
             let row = self.cells.index((0, j));
             let (a, b) = (
                 self.start[row + i0] as usize,
                 self.start[row + i1 + 1] as usize,
             );
-            for p in &self.points[a..b] {
-                if (p - centre).norm_squared() <= radius_sq {
-                    visit(p);
-                }
-            }
+            self.points[a..b].iter().for_each(&mut visit);
         }
     }
 }

@@ -4,7 +4,8 @@
 
 use std::fmt::Debug;
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::allocator::Allocator;
+use nalgebra::{DMatrix, DVector, DefaultAllocator, Dim, Matrix, OMatrix, RawStorage};
 
 use crate::coords::Coordinates;
 use crate::error::{Error, Result};
@@ -160,6 +161,20 @@ pub trait MeasurementModel: Clone + Debug + Send + Sync + 'static {
         let _ = views;
         Ok(None)
     }
+
+    /// [`linearize_own_at`] written out for this model, for speed: FastSLAM's landmark
+    /// filters call it for every particle, observation and candidate. `None` (the default)
+    /// takes the generic chain. An override must return the chain's numbers bit for bit
+    /// ([`chain_product`] and [`chain_covariance`] are the chain's own products, for any
+    /// matrix sizes); [`crate::testing::assert_measurement_conforms`] checks it.
+    fn linearize_own(
+        &self,
+        feature: &Self::Feature,
+        to_sensor: &MapToSensor,
+    ) -> Option<Result<OwnLinearization>> {
+        let _ = (feature, to_sensor);
+        None
+    }
 }
 
 /// A change of a feature's coordinates outside its M-space ([`MeasurementModel::extend`]).
@@ -238,6 +253,17 @@ pub trait DynMeasurementModel: Debug + Send + Sync {
 
     /// The measurement as `Any`, to recover its concrete type.
     fn as_any(&self) -> &dyn std::any::Any;
+
+    /// [`MeasurementModel::linearize_own`]; `None` also when the feature is of another type
+    /// (the generic chain then reports it).
+    fn linearize_own_dyn(
+        &self,
+        feature: &dyn Feature,
+        to_sensor: &MapToSensor,
+    ) -> Option<Result<OwnLinearization>> {
+        let _ = (feature, to_sensor);
+        None
+    }
 }
 
 impl<M: MeasurementModel> DynMeasurementModel for M {
@@ -317,6 +343,14 @@ impl<M: MeasurementModel> DynMeasurementModel for M {
 
     fn as_any(&self) -> &dyn std::any::Any {
         self
+    }
+
+    fn linearize_own_dyn(
+        &self,
+        feature: &dyn Feature,
+        to_sensor: &MapToSensor,
+    ) -> Option<Result<OwnLinearization>> {
+        self.linearize_own(downcast_feature::<M::Feature>(feature)?, to_sensor)
     }
 }
 
@@ -459,10 +493,35 @@ fn own_columns(feature: &dyn Feature, d_eta_d_xf: &DMatrix<f64>) -> Result<DMatr
 
 /// `C_eta = J_eta_v C_v J_eta_v^T`.
 fn measurement_covariance(innovation: &Innovation) -> DMatrix<f64> {
-    let d_eta_d_v_cov = small_product(&innovation.d_eta_d_v, &innovation.cov_v);
-    DMatrix::from_fn(innovation.dim(), innovation.dim(), |i, j| {
+    chain_covariance(&innovation.d_eta_d_v, &innovation.cov_v)
+}
+
+/// `J C J^T` as the generic chain computes `C_eta = J_eta_v C_v J_eta_v^T`, for matrices of
+/// any storage (a model's [`MeasurementModel::linearize_own`] on stack matrices gets the same
+/// bits).
+///
+/// ```
+/// use slam_core::{chain_covariance, nalgebra::{Matrix2, Matrix2x3, Matrix3}};
+/// let j = Matrix2x3::new(1.0, 0.0, 2.0, 0.0, 1.0, 0.0);
+/// let c = Matrix3::from_diagonal_element(0.5);
+/// assert_eq!(chain_covariance(&j, &c), Matrix2::new(2.5, 0.0, 0.0, 0.5));
+/// ```
+pub fn chain_covariance<R, V, SJ, SC>(
+    d_eta_d_v: &Matrix<f64, R, V, SJ>,
+    cov_v: &Matrix<f64, V, V, SC>,
+) -> OMatrix<f64, R, R>
+where
+    R: Dim,
+    V: Dim,
+    SJ: RawStorage<f64, R, V>,
+    SC: RawStorage<f64, V, V>,
+    DefaultAllocator: Allocator<R, V> + Allocator<R, R>,
+{
+    let d_eta_d_v_cov = chain_product(d_eta_d_v, cov_v);
+    let rows = d_eta_d_v.shape_generic().0;
+    OMatrix::<f64, R, R>::from_fn_generic(rows, rows, |i, j| {
         (0..d_eta_d_v_cov.ncols())
-            .map(|k| d_eta_d_v_cov[(i, k)] * innovation.d_eta_d_v[(j, k)])
+            .map(|k| d_eta_d_v_cov[(i, k)] * d_eta_d_v[(j, k)])
             .sum()
     })
 }
@@ -497,6 +556,9 @@ pub fn linearize_own_at(
     feature: &dyn Feature,
     to_sensor: &MapToSensor,
 ) -> Result<OwnLinearization> {
+    if let Some(own) = measurement.linearize_own_dyn(feature, to_sensor) {
+        return own;
+    }
     let (x_o, d_xo_d_xm) = to_sensor.transform_with_feature_jacobian(feature.coordinates())?;
     let innovation = measurement.innovation_dyn(feature, &x_o)?;
     let d_eta_d_xf = small_product(&innovation.d_eta_d_xo, &d_xo_d_xm);
@@ -522,8 +584,36 @@ impl LinearizedMeasurement {
 /// product's set-up costs more than the product at these sizes).
 /// The shapes are the caller's to check (a panic on a mismatch, as for `a * b`).
 fn small_product(a: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
-    assert_eq!(a.ncols(), b.nrows(), "small_product: shapes do not chain");
-    let mut out = DMatrix::zeros(a.nrows(), b.ncols());
+    chain_product(a, b)
+}
+
+/// `a b` as the generic measurement chain computes it (each column summed in order of `k`,
+/// zero entries of `b` skipped), for matrices of any storage: a model's
+/// [`MeasurementModel::linearize_own`] on stack matrices gets the chain's bits with it.
+///
+/// # Panics
+/// When `a`'s columns are not `b`'s rows, as `a * b` does.
+///
+/// ```
+/// use slam_core::{chain_product, nalgebra::Matrix2};
+/// let a = Matrix2::new(1.0, 2.0, 3.0, 4.0);
+/// assert_eq!(chain_product(&a, &Matrix2::identity()), a);
+/// ```
+pub fn chain_product<R, K1, K2, C, SA, SB>(
+    a: &Matrix<f64, R, K1, SA>,
+    b: &Matrix<f64, K2, C, SB>,
+) -> OMatrix<f64, R, C>
+where
+    R: Dim,
+    K1: Dim,
+    K2: Dim,
+    C: Dim,
+    SA: RawStorage<f64, R, K1>,
+    SB: RawStorage<f64, K2, C>,
+    DefaultAllocator: Allocator<R, C>,
+{
+    assert_eq!(a.ncols(), b.nrows(), "chain_product: shapes do not chain");
+    let mut out = OMatrix::<f64, R, C>::zeros_generic(a.shape_generic().0, b.shape_generic().1);
     for j in 0..b.ncols() {
         for k in 0..a.ncols() {
             let weight = b[(k, j)];

@@ -149,14 +149,19 @@ impl MapToSensor {
         })
     }
 
+    /// A 2-D point of the map (a vertical line's foot) in the sensor's scan plane: the
+    /// `Point2` case of [`MapToSensor::transform_block`] (appendix eq. 34).
+    pub fn transform_point2(&self, world_point: &Vector2<f64>) -> Result<Vector2<f64>> {
+        let t = &self.world_from_sensor.translation;
+        Ok(self.scan_plane()?.sensor_from_world_2d * (world_point - Vector2::new(t.x, t.y)))
+    }
+
     /// One block in the sensor frame (eq. 7, 8 or 9 by kind).
     pub fn transform_block(&self, block: &CoordBlock) -> Result<CoordBlock> {
         let t = &self.world_from_sensor.translation;
         Ok(match block {
             CoordBlock::Point3(p) => CoordBlock::Point3(self.sensor_from_world_3d * (p - t)),
-            CoordBlock::Point2(p) => CoordBlock::Point2(
-                self.scan_plane()?.sensor_from_world_2d * (p - Vector2::new(t.x, t.y)),
-            ),
+            CoordBlock::Point2(p) => CoordBlock::Point2(self.transform_point2(p)?),
             CoordBlock::Scalar(s) => CoordBlock::Scalar(*s),
         })
     }

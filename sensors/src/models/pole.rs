@@ -1,9 +1,9 @@
 //! A laser observation of a pole (tree trunk): range and bearing to its centre and its radius.
 
-use slam_core::nalgebra::{DMatrix, DVector, Vector2};
+use slam_core::nalgebra::{DMatrix, DVector, Matrix3, Vector2, Vector3};
 use slam_core::{
-    CoordBlock, Coordinates, Error, Feature, Innovation, MeasurementModel, Pose3, Result,
-    ensure_finite, wrap_angle,
+    CoordBlock, Coordinates, Error, Feature, Innovation, MapToSensor, MeasurementModel,
+    OwnLinearization, Pose3, Result, chain_covariance, chain_product, ensure_finite, wrap_angle,
 };
 use slam_features::Pole;
 
@@ -44,6 +44,49 @@ impl PoleObservation {
     }
 }
 
+impl PoleObservation {
+    /// `eta`, `J_eta_o`, `J_eta_v` and `C_v` on the stack for a pole of radius `radius` centred
+    /// at `centre` in the sensor frame: the one formula behind
+    /// [`MeasurementModel::innovation`] and [`MeasurementModel::linearize_own`].
+    fn innovation_parts(&self, radius: f64, centre: &Vector2<f64>) -> Result<InnovationParts> {
+        let d2 = centre.norm_squared();
+        if d2 < 1e-18 {
+            return Err(Error::Degenerate("pole centre at the sensor origin".into()));
+        }
+        let d = d2.sqrt();
+        let (x, y) = (centre.x, centre.y);
+        let parts = InnovationParts {
+            eta: Vector3::new(
+                d - self.range,
+                wrap_angle(y.atan2(x) - self.bearing),
+                radius - self.radius,
+            ),
+            d_eta_d_xo: Matrix3::new(0.0, x / d, y / d, 0.0, -y / d2, x / d2, 1.0, 0.0, 0.0),
+            d_eta_d_v: -Matrix3::identity(),
+            cov_v: Matrix3::from_diagonal(&Vector3::from_iterator(
+                self.sigmas.iter().map(|s| s * s),
+            )),
+        };
+        let all = (parts.eta.iter())
+            .chain(parts.d_eta_d_xo.iter())
+            .chain(parts.d_eta_d_v.iter())
+            .chain(parts.cov_v.iter());
+        if all.into_iter().all(|v| v.is_finite()) {
+            Ok(parts)
+        } else {
+            Err(Error::NonFinite("innovation".into()))
+        }
+    }
+}
+
+/// [`Innovation`]'s fields for a pole, on the stack.
+struct InnovationParts {
+    eta: Vector3<f64>,
+    d_eta_d_xo: Matrix3<f64>,
+    d_eta_d_v: Matrix3<f64>,
+    cov_v: Matrix3<f64>,
+}
+
 impl MeasurementModel for PoleObservation {
     type Feature = Pole;
 
@@ -53,38 +96,44 @@ impl MeasurementModel for PoleObservation {
                 "a pole is a radius and a 2-D centre".into(),
             ));
         };
-        let d2 = c.norm_squared();
-        if d2 < 1e-18 {
-            return Err(Error::Degenerate("pole centre at the sensor origin".into()));
-        }
-        let d = d2.sqrt();
+        let parts = self.innovation_parts(*r, c)?;
         Ok(Innovation {
-            eta: DVector::from_vec(vec![
-                d - self.range,
-                wrap_angle(c.y.atan2(c.x) - self.bearing),
-                r - self.radius,
-            ]),
-            d_eta_d_xo: DMatrix::from_row_slice(
-                3,
-                3,
-                &[
-                    0.0,
-                    c.x / d,
-                    c.y / d,
-                    0.0,
-                    -c.y / d2,
-                    c.x / d2,
-                    1.0,
-                    0.0,
-                    0.0,
-                ],
-            ),
-            d_eta_d_v: -DMatrix::identity(3, 3),
-            cov_v: DMatrix::from_diagonal(&DVector::from_iterator(
-                3,
-                self.sigmas.iter().map(|s| s * s),
-            )),
+            eta: DVector::from_column_slice(parts.eta.as_slice()),
+            d_eta_d_xo: DMatrix::from_column_slice(3, 3, parts.d_eta_d_xo.as_slice()),
+            d_eta_d_v: DMatrix::from_column_slice(3, 3, parts.d_eta_d_v.as_slice()),
+            cov_v: DMatrix::from_column_slice(3, 3, parts.cov_v.as_slice()),
         })
+    }
+
+    /// The generic chain on stack matrices: `x_o = (r, R (c - t))`, `J_of = diag(1, R)`, and
+    /// `B~` the identity of a full pole or no columns for a tentative one (Table II).
+    fn linearize_own(
+        &self,
+        pole: &Pole,
+        to_sensor: &MapToSensor,
+    ) -> Option<Result<OwnLinearization>> {
+        let own = || {
+            let rotation = to_sensor.rotation_2d()?;
+            let centre = to_sensor.transform_point2(&pole.centre())?;
+            let parts = self.innovation_parts(pole.radius(), &centre)?;
+            let mut d_xo_d_xm = Matrix3::zeros();
+            d_xo_d_xm[(0, 0)] = 1.0;
+            d_xo_d_xm.fixed_view_mut::<2, 2>(1, 1).copy_from(rotation);
+            let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, &d_xo_d_xm);
+            let d_eta_d_own = if pole.mspace_dim() == 3 {
+                let own = chain_product(&d_eta_d_xf, &Matrix3::identity());
+                DMatrix::from_column_slice(3, 3, own.as_slice())
+            } else {
+                DMatrix::zeros(3, 0)
+            };
+            let cov_eta = chain_covariance(&parts.d_eta_d_v, &parts.cov_v);
+            Ok(OwnLinearization {
+                eta: DVector::from_column_slice(parts.eta.as_slice()),
+                cov_eta: DMatrix::from_column_slice(3, 3, cov_eta.as_slice()),
+                d_eta_d_own,
+            })
+        };
+        Some(own())
     }
 
     fn measurement(&self) -> DVector<f64> {

@@ -22,7 +22,13 @@ use crate::error::{Error, Result};
 /// assert!((wrap_angle(-0.5) + 0.5).abs() < 1e-15);
 /// ```
 pub fn wrap_angle(angle: f64) -> f64 {
-    let mut wrapped = angle % TAU;
+    // `%` returns an angle smaller than a turn as it is, exactly; skipping it skips a
+    // software `fmod` on the hot paths (every bearing innovation).
+    let mut wrapped = if angle.abs() < TAU {
+        angle
+    } else {
+        angle % TAU
+    };
     if wrapped > PI {
         wrapped -= TAU;
     } else if wrapped <= -PI {

@@ -158,10 +158,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         let mut open = Vec::new();
         let mut lists = Vec::new();
         let particle: &Particle<P, LandmarkMap<P>> = self.particle;
-        self.frames = observations
-            .iter()
-            .map(|o| SensorFrame::new(&particle.pose, &o.robot_from_sensor).ok())
-            .collect();
+        self.frames = frames_of(&particle.pose, observations);
         self.frames_pose = Some(particle.pose);
         let frames = &self.frames;
         let (nearby, placed) = near_any(particle, self.context, observations, frames);
@@ -411,6 +408,25 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         }
         map.tentative = keep;
     }
+}
+
+/// The sensor frame of each observation from `world_from_robot`, made once per sensor: a
+/// run of observations from the same mounting shares one (a clone of the same numbers).
+fn frames_of<P: RobotPose>(
+    world_from_robot: &P,
+    observations: &[Observation],
+) -> Vec<Option<SensorFrame>> {
+    let mut frames: Vec<Option<SensorFrame>> = Vec::with_capacity(observations.len());
+    for (index, observation) in observations.iter().enumerate() {
+        let same_sensor =
+            index > 0 && observations[index - 1].robot_from_sensor == observation.robot_from_sensor;
+        let frame = match frames.last() {
+            Some(previous) if same_sensor => previous.clone(),
+            _ => SensorFrame::new(world_from_robot, &observation.robot_from_sensor).ok(),
+        };
+        frames.push(frame);
+    }
+    frames
 }
 
 /// The particle's features, in slot order, whose bounding box lies within the association

@@ -3,7 +3,8 @@
 use slam_core::nalgebra::{DMatrix, DVector, Matrix3, Vector2, Vector3};
 use slam_core::{
     CoordBlock, Coordinates, Error, Feature, Innovation, MapToSensor, MeasurementModel,
-    OwnLinearization, Pose3, Result, chain_covariance, chain_product, ensure_finite, wrap_angle,
+    OwnLinearization, Pose3, Result, all_finite, chain_covariance, chain_product, ensure_finite,
+    wrap_angle,
 };
 use slam_features::Pole;
 
@@ -67,11 +68,12 @@ impl PoleObservation {
                 self.sigmas.iter().map(|s| s * s),
             )),
         };
-        let all = (parts.eta.iter())
-            .chain(parts.d_eta_d_xo.iter())
-            .chain(parts.d_eta_d_v.iter())
-            .chain(parts.cov_v.iter());
-        if all.into_iter().all(|v| v.is_finite()) {
+        if all_finite(&[
+            parts.eta.as_slice(),
+            parts.d_eta_d_xo.as_slice(),
+            parts.d_eta_d_v.as_slice(),
+            parts.cov_v.as_slice(),
+        ]) {
             Ok(parts)
         } else {
             Err(Error::NonFinite("innovation".into()))

@@ -6,8 +6,8 @@ use std::sync::Arc;
 use rand_chacha::ChaCha8Rng;
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{
-    DynMeasurementModel, Feature, MapToSensor, Observation, Result, RobotPose, SensorFrame,
-    UpdateReport,
+    DynMeasurementModel, Feature, MapToSensor, Observation, OwnLinearization, Result, RobotPose,
+    SensorFrame, UpdateReport,
 };
 
 use super::landmark::{Landmark, LandmarkMap};
@@ -28,6 +28,21 @@ pub(super) enum Decision {
     New,
     /// Dropped, with the log-likelihood of its best candidate (if any).
     Reject(Option<f64>),
+}
+
+/// A candidate's linearization and likelihood (`(ln N, eta^T S^-1 eta, dof)`), kept from the
+/// association for its pairing.
+#[derive(Debug)]
+struct Scored {
+    lin: OwnLinearization,
+    likelihood: (f64, f64, usize),
+}
+
+/// The association's linearization of the pair it chose for an observation.
+#[derive(Debug)]
+struct Chosen {
+    slot: usize,
+    scored: Scored,
 }
 
 /// Gates and the step's shared data, the same for every particle.
@@ -92,6 +107,10 @@ pub(super) struct ParticleStep<'a, 'c, P: RobotPose> {
     frames: Vec<Option<SensorFrame>>,
     /// The particle's pose when the frames were made.
     frames_pose: Option<P>,
+    /// Each observation's chosen pair with its linearization at `frames_pose`.
+    chosen: Vec<Option<Chosen>>,
+    /// Slots the step's pairings changed (their association linearizations are stale).
+    touched: Vec<usize>,
 }
 
 impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
@@ -109,6 +128,8 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             rng,
             frames: Vec::new(),
             frames_pose: None,
+            chosen: Vec::new(),
+            touched: Vec::new(),
         }
     }
 
@@ -155,6 +176,8 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
     /// landmark ids directly, the others by the shared association rule.
     fn associate(&mut self, observations: &[Observation]) -> Result<Vec<Decision>> {
         let mut decisions: Vec<Option<Decision>> = Vec::with_capacity(observations.len());
+        self.chosen = (0..observations.len()).map(|_| None).collect();
+        self.touched.clear();
         let mut open = Vec::new();
         let mut lists = Vec::new();
         let particle: &Particle<P, LandmarkMap<P>> = self.particle;
@@ -192,9 +215,16 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
                 pairings.iter().map(|c| c.dof).sum(),
             ))
         })?;
-        for ((index, list), choice) in open.into_iter().zip(&lists).zip(choices) {
+        for ((index, mut list), choice) in open.into_iter().zip(lists).zip(choices) {
             decisions[index] = Some(match choice {
-                Choice::Pair(k) => Decision::Pair(list[k].feature),
+                Choice::Pair(k) => {
+                    let candidate = list.swap_remove(k);
+                    self.chosen[index] = Some(Chosen {
+                        slot: candidate.feature,
+                        scored: candidate.data,
+                    });
+                    Decision::Pair(candidate.feature)
+                }
                 Choice::New if self.crowded(&observations[index]) => {
                     self.report
                         .skipped
@@ -204,7 +234,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
                 Choice::New => Decision::New,
                 Choice::Ambiguous => Decision::Reject(
                     list.iter()
-                        .map(|c| c.data)
+                        .map(|c| c.data.likelihood.0)
                         .fold(None, |best: Option<f64>, l| {
                             Some(best.map_or(l, |b| b.max(l)))
                         }),
@@ -240,15 +270,23 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
     /// extension.
     fn pair(&mut self, slot: usize, index: usize, observation: &Observation) -> Result<()> {
         let pose = self.particle.pose;
+        let chosen = self.chosen_scored(slot, index);
         let frame = self.frame(index, observation);
+        self.touched.push(slot);
         let Some(landmark) = self.particle.map.landmarks.get(slot) else {
             self.report.rejected += 1;
             return Ok(());
         };
-        let lin = frame
-            .as_ref()
-            .and_then(|frame| landmark.linearize(observation, frame));
-        let likelihood = lin.as_ref().and_then(|lin| landmark.likelihood(lin));
+        let (lin, likelihood) = match chosen {
+            Some(Scored { lin, likelihood }) => (Some(lin), Some(likelihood)),
+            None => {
+                let lin = frame
+                    .as_ref()
+                    .and_then(|frame| landmark.linearize(observation, frame));
+                let likelihood = lin.as_ref().and_then(|lin| landmark.likelihood(lin));
+                (lin, likelihood)
+            }
+        };
         let (Some(lin), Some((log_likelihood, d2, dof))) = (lin, likelihood) else {
             self.report.rejected += 1;
             self.report
@@ -294,6 +332,17 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             landmark.update_linearized(&lin, skips);
         }
         landmark.extend(observation, &pose, skips)
+    }
+
+    /// The association's linearization and likelihood of observation `index` with the
+    /// feature in `slot` (taken), while they are what the pairing would compute again: the
+    /// particle has not moved since and no pairing of this step changed the feature.
+    fn chosen_scored(&mut self, slot: usize, index: usize) -> Option<Scored> {
+        let chosen = self.chosen.get_mut(index).and_then(Option::take)?;
+        let fresh = chosen.slot == slot
+            && self.frames_pose == Some(self.particle.pose)
+            && !self.touched.contains(&slot);
+        fresh.then_some(chosen.scored)
     }
 
     /// Starts a feature from an observation.
@@ -491,7 +540,7 @@ fn candidates<'f, P: RobotPose>(
     frame: Option<&SensorFrame>,
     placed: &Placed,
     nearby: &[(usize, &'f dyn Feature)],
-) -> Vec<Candidate<f64>> {
+) -> Vec<Candidate<Scored>> {
     let Some(frame) = frame else {
         report
             .skipped
@@ -512,21 +561,23 @@ fn candidates<'f, P: RobotPose>(
         let Some(landmark) = landmarks.get(slot) else {
             continue;
         };
-        let likelihood = landmark
-            .linearize(observation, frame)
-            .and_then(|lin| landmark.likelihood(&lin));
-        let Some((log_likelihood, d2, dof)) = likelihood else {
+        let scored = landmark.linearize(observation, frame).and_then(|lin| {
+            let likelihood = landmark.likelihood(&lin)?;
+            Some(Scored { lin, likelihood })
+        });
+        let Some(scored) = scored else {
             report
                 .skipped
                 .count("association: candidate likelihood not computable");
             continue;
         };
+        let (_, d2, dof) = scored.likelihood;
         list.push(Candidate {
             feature: slot,
             distance: d2,
             dof,
             tentative: feature.mspace_dim() == 0,
-            data: log_likelihood,
+            data: scored,
         });
     }
     sort_by_distance(&mut list);

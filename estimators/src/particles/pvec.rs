@@ -38,7 +38,28 @@ impl<T> Summary<T> for () {
 #[derive(Debug)]
 enum Children<T, S> {
     Branch(Vec<Arc<Node<T, S>>>),
-    Leaf(Vec<Option<Arc<T>>>),
+    Leaf(Vec<Option<Arc<Element<T, S>>>>),
+}
+
+/// An element with its own summary, computed on first use and forgotten when the element is
+/// written: vectors that share the element share its summary too.
+#[derive(Clone, Debug)]
+struct Element<T, S> {
+    value: T,
+    summary: OnceLock<S>,
+}
+
+impl<T, S: Summary<T>> Element<T, S> {
+    fn new(value: T) -> Self {
+        Element {
+            value,
+            summary: OnceLock::new(),
+        }
+    }
+
+    fn summary(&self) -> &S {
+        self.summary.get_or_init(|| S::of(&self.value))
+    }
 }
 
 #[derive(Debug)]
@@ -89,8 +110,8 @@ impl<T, S: Summary<T>> Node<T, S> {
                     }
                 }
                 Children::Leaf(values) => {
-                    for value in values.iter().flatten() {
-                        summary.join(&S::of(value));
+                    for element in values.iter().flatten() {
+                        summary.join(element.summary());
                     }
                 }
             }
@@ -151,7 +172,9 @@ impl<T: Clone, S: Summary<T>> PVec<T, S> {
                     node = children.get((index >> shift) & MASK)?.as_ref();
                     shift = shift.saturating_sub(BITS);
                 }
-                Children::Leaf(values) => return values.get(index & MASK)?.as_deref(),
+                Children::Leaf(values) => {
+                    return values.get(index & MASK)?.as_deref().map(|e| &e.value);
+                }
             }
         }
     }
@@ -170,14 +193,14 @@ impl<T: Clone, S: Summary<T>> PVec<T, S> {
             self.shift += BITS;
         }
         self.len += 1;
-        self.write(index, Some(Arc::new(value)));
+        self.write(index, Some(Arc::new(Element::new(value))));
         index
     }
 
     /// Replaces slot `index` (which must exist) by `value` (`None`: a hole).
     pub(crate) fn set(&mut self, index: usize, value: Option<T>) {
         if index < self.len {
-            self.write(index, value.map(Arc::new));
+            self.write(index, value.map(|v| Arc::new(Element::new(v))));
         }
     }
 
@@ -197,13 +220,15 @@ impl<T: Clone, S: Summary<T>> PVec<T, S> {
                     shift = shift.saturating_sub(BITS);
                 }
                 Children::Leaf(values) => {
-                    return values.get_mut(index & MASK)?.as_mut().map(Arc::make_mut);
+                    let element = Arc::make_mut(values.get_mut(index & MASK)?.as_mut()?);
+                    element.summary.take();
+                    return Some(&mut element.value);
                 }
             }
         }
     }
 
-    fn write(&mut self, index: usize, value: Option<Arc<T>>) {
+    fn write(&mut self, index: usize, value: Option<Arc<Element<T, S>>>) {
         let mut node = make_mut(&mut self.root);
         let mut shift = self.shift;
         loop {
@@ -265,11 +290,11 @@ fn collect<'a, T, S: Summary<T>>(
             }
         }
         Children::Leaf(values) => {
-            for (k, value) in values.iter().enumerate() {
-                if let Some(v) = value
-                    && wanted(&S::of(v))
+            for (k, element) in values.iter().enumerate() {
+                if let Some(element) = element
+                    && wanted(element.summary())
                 {
-                    out.push((base + k, v.as_ref()));
+                    out.push((base + k, &element.value));
                 }
             }
         }

@@ -268,7 +268,8 @@ impl<T: Clone, S: Summary<T>> PVec<T, S> {
     /// The occupied slots, in slot order, whose element's summary `wanted` accepts; whole
     /// subtrees whose summary it rejects are skipped (see [`Summary`]).
     pub(crate) fn iter_where(&self, wanted: impl Fn(&S) -> bool) -> Vec<(usize, &T)> {
-        let mut out = Vec::new();
+        // Room for a leaf's worth: most queries want a few elements.
+        let mut out = Vec::with_capacity(WIDTH);
         collect(&self.root, 0, &wanted, &mut out);
         out
     }

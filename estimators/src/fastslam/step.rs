@@ -478,6 +478,9 @@ fn frames_of<P: RobotPose>(
     frames
 }
 
+/// A feature of a particle's map with its slot and bounding box.
+type Nearby<'f> = (usize, &'f dyn Feature, BoundingBox);
+
 /// The particle's features, in slot order, whose bounding box lies within the association
 /// margin of the box of every feature the step's observations without an id would start: one
 /// search of the map's boxes per step instead of a pass over the map per observation. All of
@@ -488,7 +491,7 @@ fn near_any<'f, P: RobotPose>(
     context: &StepContext<'_>,
     observations: &[Observation],
     frames: &[Option<SensorFrame>],
-) -> (Vec<(usize, &'f dyn Feature)>, Vec<Placed>) {
+) -> (Vec<Nearby<'f>>, Vec<Placed>) {
     let placed: Vec<Placed> = observations
         .iter()
         .zip(frames)
@@ -511,20 +514,13 @@ fn near_any<'f, P: RobotPose>(
         }
     }
     let landmarks = &particle.map.landmarks;
-    let nearby = if filtered {
-        let margin = context.params.association_margin;
-        // A subtree's box is near the reach whenever one of its features' boxes is.
-        landmarks
-            .iter_where(|bbox| bbox.near(&reach, margin))
-            .into_iter()
-            .map(|(slot, l)| (slot, l.feature.as_ref()))
-            .collect()
-    } else {
-        landmarks
-            .iter()
-            .map(|(slot, l)| (slot, l.feature.as_ref()))
-            .collect()
-    };
+    let margin = context.params.association_margin;
+    // A subtree's box is near the reach whenever one of its features' boxes is.
+    let nearby = landmarks
+        .iter_where(|bbox| !filtered || bbox.near(&reach, margin))
+        .into_iter()
+        .map(|(slot, l, bbox)| (slot, l.feature.as_ref(), *bbox))
+        .collect();
     (nearby, placed)
 }
 
@@ -539,7 +535,7 @@ fn candidates<'f, P: RobotPose>(
     observation: &Observation,
     frame: Option<&SensorFrame>,
     placed: &Placed,
-    nearby: &[(usize, &'f dyn Feature)],
+    nearby: &[Nearby<'f>],
 ) -> Vec<Candidate<Scored>> {
     let Some(frame) = frame else {
         report
@@ -548,12 +544,19 @@ fn candidates<'f, P: RobotPose>(
         return Vec::new();
     };
     let landmarks = &particle.map.landmarks;
+    let margin = context.params.association_margin;
+    // The boxes kept from the map's search first (`candidate_features_in` applies the same
+    // test again to the few that pass).
+    let near_placed = nearby.iter().filter(|(_, _, bbox)| match placed {
+        Placed::At(near) => bbox.near(near, margin),
+        _ => true,
+    });
     let near = candidate_features_in(
-        nearby.iter().copied(),
+        near_placed.map(|&(slot, feature, _)| (slot, feature)),
         observation.measurement.as_ref(),
         placed,
         &frame.to_sensor,
-        context.params.association_margin,
+        margin,
         &mut report.skipped,
     );
     let mut list = Vec::with_capacity(near.len());

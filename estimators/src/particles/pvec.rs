@@ -262,12 +262,13 @@ impl<T: Clone, S: Summary<T>> PVec<T, S> {
     pub(crate) fn iter(&self) -> impl Iterator<Item = (usize, &T)> {
         let mut out = Vec::new();
         collect(&self.root, 0, &|_: &S| true, &mut out);
-        out.into_iter()
+        out.into_iter().map(|(slot, value, _)| (slot, value))
     }
 
-    /// The occupied slots, in slot order, whose element's summary `wanted` accepts; whole
-    /// subtrees whose summary it rejects are skipped (see [`Summary`]).
-    pub(crate) fn iter_where(&self, wanted: impl Fn(&S) -> bool) -> Vec<(usize, &T)> {
+    /// The occupied slots, in slot order, whose element's summary `wanted` accepts, with
+    /// their elements and summaries; whole subtrees whose summary it rejects are skipped (see
+    /// [`Summary`]).
+    pub(crate) fn iter_where(&self, wanted: impl Fn(&S) -> bool) -> Vec<(usize, &T, &S)> {
         // Room for a leaf's worth: most queries want a few elements.
         let mut out = Vec::with_capacity(WIDTH);
         collect(&self.root, 0, &wanted, &mut out);
@@ -279,7 +280,7 @@ fn collect<'a, T, S: Summary<T>>(
     node: &'a Node<T, S>,
     base: usize,
     wanted: &impl Fn(&S) -> bool,
-    out: &mut Vec<(usize, &'a T)>,
+    out: &mut Vec<(usize, &'a T, &'a S)>,
 ) {
     match &node.children {
         Children::Branch(children) => {
@@ -292,10 +293,11 @@ fn collect<'a, T, S: Summary<T>>(
         }
         Children::Leaf(values) => {
             for (k, element) in values.iter().enumerate() {
-                if let Some(element) = element
-                    && wanted(element.summary())
-                {
-                    out.push((base + k, &element.value));
+                if let Some(element) = element {
+                    let summary = element.summary();
+                    if wanted(summary) {
+                        out.push((base + k, &element.value, summary));
+                    }
                 }
             }
         }
@@ -380,7 +382,7 @@ mod tests {
             let pruned: Vec<(usize, usize)> = v
                 .iter_where(|r| r.0 <= hi && lo <= r.1)
                 .into_iter()
-                .map(|(k, x)| (k, *x))
+                .map(|(k, x, _)| (k, *x))
                 .collect();
             let filtered: Vec<(usize, usize)> = v
                 .iter()

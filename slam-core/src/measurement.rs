@@ -188,6 +188,19 @@ pub trait MeasurementModel: Clone + Debug + Send + Sync + 'static {
         let _ = (feature, to_sensor);
         None
     }
+
+    /// [`linearize_at`] written out for this model, for speed (FastSLAM 2.0's proposal and
+    /// the EKF call it for every pairing). `None` (the default) takes the generic chain
+    /// ([`chain_linearize_at`]); an override must return the chain's numbers bit for bit,
+    /// which [`crate::testing::assert_measurement_conforms`] checks.
+    fn linearize_at(
+        &self,
+        feature: &Self::Feature,
+        frame: &SensorFrame,
+    ) -> Option<Result<LinearizedMeasurement>> {
+        let _ = (feature, frame);
+        None
+    }
 }
 
 /// A change of a feature's coordinates outside its M-space ([`MeasurementModel::extend`]).
@@ -277,6 +290,16 @@ pub trait DynMeasurementModel: Debug + Send + Sync {
         let _ = (feature, to_sensor);
         None
     }
+
+    /// [`MeasurementModel::linearize_at`]; `None` also when the feature is of another type.
+    fn linearize_at_dyn(
+        &self,
+        feature: &dyn Feature,
+        frame: &SensorFrame,
+    ) -> Option<Result<LinearizedMeasurement>> {
+        let _ = (feature, frame);
+        None
+    }
 }
 
 impl<M: MeasurementModel> DynMeasurementModel for M {
@@ -364,6 +387,14 @@ impl<M: MeasurementModel> DynMeasurementModel for M {
         to_sensor: &MapToSensor,
     ) -> Option<Result<OwnLinearization>> {
         self.linearize_own(downcast_feature::<M::Feature>(feature)?, to_sensor)
+    }
+
+    fn linearize_at_dyn(
+        &self,
+        feature: &dyn Feature,
+        frame: &SensorFrame,
+    ) -> Option<Result<LinearizedMeasurement>> {
+        MeasurementModel::linearize_at(self, downcast_feature::<M::Feature>(feature)?, frame)
     }
 }
 
@@ -457,8 +488,23 @@ pub fn linearize<P: RobotPose>(
 
 /// [`linearize`] in a sensor frame made beforehand: the frame (pose composition, its
 /// Jacobians, the rotations of eqs. 7 and 34) is computed once for all observations of a
-/// step, not once per observation.
+/// step, not once per observation. The model's own [`MeasurementModel::linearize_at`] when it
+/// writes one, else [`chain_linearize_at`].
 pub fn linearize_at(
+    measurement: &dyn DynMeasurementModel,
+    feature: &dyn Feature,
+    frame: &SensorFrame,
+) -> Result<LinearizedMeasurement> {
+    match measurement.linearize_at_dyn(feature, frame) {
+        Some(lin) => lin,
+        None => chain_linearize_at(measurement, feature, frame),
+    }
+}
+
+/// The generic chain of eqs. 16-21 and 30, the same for every feature type: the map-to-sensor
+/// transform with its Jacobians, the model's innovation, and their products. What
+/// [`linearize_at`] computes for a model that does not write its own.
+pub fn chain_linearize_at(
     measurement: &dyn DynMeasurementModel,
     feature: &dyn Feature,
     frame: &SensorFrame,
@@ -554,7 +600,8 @@ pub struct OwnLinearization {
 
 /// [`linearize_at`] reduced to [`OwnLinearization`]: the innovation, its covariance and the
 /// feature's own columns (eqs. 16, 19 and 21 without `J_os`), with the sensor's
-/// map-to-sensor transform made beforehand.
+/// map-to-sensor transform made beforehand. The model's own
+/// [`MeasurementModel::linearize_own`] when it writes one, else [`chain_linearize_own_at`].
 ///
 /// ```
 /// use slam_core::{linearize_at, linearize_own_at, Pose2, Pose3, SensorFrame};
@@ -569,9 +616,18 @@ pub fn linearize_own_at(
     feature: &dyn Feature,
     to_sensor: &MapToSensor,
 ) -> Result<OwnLinearization> {
-    if let Some(own) = measurement.linearize_own_dyn(feature, to_sensor) {
-        return own;
+    match measurement.linearize_own_dyn(feature, to_sensor) {
+        Some(own) => own,
+        None => chain_linearize_own_at(measurement, feature, to_sensor),
     }
+}
+
+/// The generic chain of [`linearize_own_at`] (see [`chain_linearize_at`]).
+pub fn chain_linearize_own_at(
+    measurement: &dyn DynMeasurementModel,
+    feature: &dyn Feature,
+    to_sensor: &MapToSensor,
+) -> Result<OwnLinearization> {
     let (x_o, d_xo_d_xm) = to_sensor.transform_with_feature_jacobian(feature.coordinates())?;
     let innovation = measurement.innovation_dyn(feature, &x_o)?;
     let d_eta_d_xf = small_product(&innovation.d_eta_d_xo, &d_xo_d_xm);

@@ -22,8 +22,8 @@ use nalgebra::{DMatrix, DVector, Vector3, Vector6};
 use crate::coords::CoordBlock;
 use crate::feature::Feature;
 use crate::measurement::{
-    DynMeasurementModel, MeasurementModel, SensorFrame, innovation_at, linearize, linearize_at,
-    linearize_own_at,
+    DynMeasurementModel, MeasurementModel, SensorFrame, chain_linearize_at, chain_linearize_own_at,
+    innovation_at, linearize, linearize_at, linearize_own_at,
 };
 use crate::pose::{Pose2, Pose3, RobotPose};
 use crate::transform::MapToSensor;
@@ -708,6 +708,18 @@ pub fn check_measurement<M: MeasurementModel>(
     let dyn_model: &dyn DynMeasurementModel = model;
     let lin = linearize(dyn_model, feature, world_from_robot, robot_from_sensor)
         .or_else(|e| fail("linearize", cfg, e.to_string()))?;
+    // A model that writes its own linearization must give the generic chain's numbers.
+    let frame = SensorFrame::new(world_from_robot, robot_from_sensor)
+        .or_else(|e| fail("sensor frame", cfg, e.to_string()))?;
+    let chain = chain_linearize_at(dyn_model, feature, &frame)
+        .or_else(|e| fail("chain_linearize_at", cfg, e.to_string()))?;
+    if lin != chain {
+        return fail(
+            "linearize_at",
+            cfg,
+            format!("the model's own differs from the generic chain: {lin:?} against {chain:?}"),
+        );
+    }
     let m = lin.eta.len();
     let nan = || DVector::from_element(m, f64::NAN);
     let sensor = world_from_robot.world_from_sensor(robot_from_sensor);
@@ -796,6 +808,17 @@ pub fn check_measurement<M: MeasurementModel>(
     // The reduced linearization of a filter over the feature alone: the same numbers.
     let own = linearize_own_at(dyn_model, feature, &frame_3d.to_sensor)
         .or_else(|e| fail("linearize_own_at", cfg, e.to_string()))?;
+    let own_chain = chain_linearize_own_at(dyn_model, feature, &frame_3d.to_sensor)
+        .or_else(|e| fail("chain_linearize_own_at", cfg, e.to_string()))?;
+    if own != own_chain {
+        return fail(
+            "linearize_own_at",
+            cfg,
+            format!(
+                "the model's own differs from the generic chain: {own:?} against {own_chain:?}"
+            ),
+        );
+    }
     if own.eta != lin_3d.eta
         || own.cov_eta != lin_3d.cov_eta
         || own.d_eta_d_own != lin_3d.d_eta_d_own

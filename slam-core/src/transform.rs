@@ -4,7 +4,7 @@
 //! This is the part of the measurement chain that is the same for every feature type: it
 //! depends only on the kinds of the coordinate blocks.
 
-use nalgebra::{DMatrix, Matrix2, Matrix3, Vector2};
+use nalgebra::{DMatrix, Matrix2, Matrix2x6, Matrix3, Vector2};
 
 use crate::coords::{CoordBlock, Coordinates};
 use crate::error::{Error, Result};
@@ -156,6 +156,26 @@ impl MapToSensor {
         Ok(self.scan_plane()?.sensor_from_world_2d * (world_point - Vector2::new(t.x, t.y)))
     }
 
+    /// `J_os` and `J_of` of a 2-D point of the map ([`MapToSensor::transform_point2`]): the
+    /// `Point2` rows of [`MapToSensor::transform_with_jacobians`], on the stack.
+    pub fn point2_jacobians(
+        &self,
+        world_point: &Vector2<f64>,
+    ) -> Result<(Matrix2x6<f64>, Matrix2<f64>)> {
+        let plane = self.scan_plane()?;
+        let t = &self.world_from_sensor.translation;
+        let offset = world_point - Vector2::new(t.x, t.y);
+        let r = &plane.sensor_from_world_2d;
+        let mut d_xo_d_sensor = Matrix2x6::zeros();
+        d_xo_d_sensor.fixed_view_mut::<2, 2>(0, 0).copy_from(&(-r));
+        for k in 0..3 {
+            d_xo_d_sensor
+                .fixed_view_mut::<2, 1>(0, 3 + k)
+                .copy_from(&(plane.d_rotation_2d[k] * offset));
+        }
+        Ok((d_xo_d_sensor, *r))
+    }
+
     /// One block in the sensor frame (eq. 7, 8 or 9 by kind).
     pub fn transform_block(&self, block: &CoordBlock) -> Result<CoordBlock> {
         let t = &self.world_from_sensor.translation;
@@ -220,16 +240,11 @@ impl MapToSensor {
                     d_xo_d_xm.view_mut((row, row), (3, 3)).copy_from(r);
                 }
                 CoordBlock::Point2(p) => {
-                    let plane = self.scan_plane()?;
-                    let offset = p - Vector2::new(t.x, t.y);
-                    let r = &plane.sensor_from_world_2d;
-                    d_xo_d_sensor.view_mut((row, 0), (2, 2)).copy_from(&(-r));
-                    for k in 0..3 {
-                        d_xo_d_sensor
-                            .view_mut((row, 3 + k), (2, 1))
-                            .copy_from(&(plane.d_rotation_2d[k] * offset));
-                    }
-                    d_xo_d_xm.view_mut((row, row), (2, 2)).copy_from(r);
+                    let (d_sensor, d_xm) = self.point2_jacobians(p)?;
+                    d_xo_d_sensor
+                        .view_mut((row, 0), (2, 6))
+                        .copy_from(&d_sensor);
+                    d_xo_d_xm.view_mut((row, row), (2, 2)).copy_from(&d_xm);
                 }
                 CoordBlock::Scalar(_) => {
                     d_xo_d_xm[(row, row)] = 1.0;

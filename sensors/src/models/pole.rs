@@ -1,10 +1,10 @@
 //! A laser observation of a pole (tree trunk): range and bearing to its centre and its radius.
 
-use slam_core::nalgebra::{DMatrix, DVector, Matrix3, Vector2, Vector3};
+use slam_core::nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Matrix3x6, Vector2, Vector3};
 use slam_core::{
-    CoordBlock, Coordinates, Error, Feature, Innovation, MapToSensor, MeasurementModel,
-    OwnLinearization, Pose3, Result, all_finite, chain_covariance, chain_product, ensure_finite,
-    wrap_angle,
+    CoordBlock, Coordinates, Error, Feature, Innovation, LinearizedMeasurement, MapToSensor,
+    MeasurementModel, OwnLinearization, Pose3, Result, SensorFrame, all_finite, chain_covariance,
+    chain_product, ensure_finite, wrap_angle,
 };
 use slam_features::Pole;
 
@@ -81,6 +81,29 @@ impl PoleObservation {
     }
 }
 
+/// `J_of` of a pole's `(radius, centre)`: `diag(1, d_centre)`.
+fn scalar_and_point2(d_centre: &Matrix2<f64>) -> Matrix3<f64> {
+    let mut d_xo_d_xm = Matrix3::zeros();
+    d_xo_d_xm[(0, 0)] = 1.0;
+    d_xo_d_xm.fixed_view_mut::<2, 2>(1, 1).copy_from(d_centre);
+    d_xo_d_xm
+}
+
+/// `J_eta_f B~`: a full pole's `B~` is the identity, a tentative pole's has no columns
+/// (Table II); the product as the chain takes it.
+fn own_columns(pole: &Pole, d_eta_d_xf: &Matrix3<f64>) -> DMatrix<f64> {
+    if pole.mspace_dim() == 3 {
+        dynamic(&chain_product(d_eta_d_xf, &Matrix3::identity()))
+    } else {
+        DMatrix::zeros(3, 0)
+    }
+}
+
+/// A 3 x 3 stack matrix as a dynamic one.
+fn dynamic(matrix: &Matrix3<f64>) -> DMatrix<f64> {
+    DMatrix::from_column_slice(3, 3, matrix.as_slice())
+}
+
 /// [`Innovation`]'s fields for a pole, on the stack.
 struct InnovationParts {
     eta: Vector3<f64>,
@@ -118,24 +141,55 @@ impl MeasurementModel for PoleObservation {
             let rotation = to_sensor.rotation_2d()?;
             let centre = to_sensor.transform_point2(&pole.centre())?;
             let parts = self.innovation_parts(pole.radius(), &centre)?;
-            let mut d_xo_d_xm = Matrix3::zeros();
-            d_xo_d_xm[(0, 0)] = 1.0;
-            d_xo_d_xm.fixed_view_mut::<2, 2>(1, 1).copy_from(rotation);
+            let d_xo_d_xm = scalar_and_point2(rotation);
             let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, &d_xo_d_xm);
-            let d_eta_d_own = if pole.mspace_dim() == 3 {
-                let own = chain_product(&d_eta_d_xf, &Matrix3::identity());
-                DMatrix::from_column_slice(3, 3, own.as_slice())
-            } else {
-                DMatrix::zeros(3, 0)
-            };
-            let cov_eta = chain_covariance(&parts.d_eta_d_v, &parts.cov_v);
             Ok(OwnLinearization {
                 eta: DVector::from_column_slice(parts.eta.as_slice()),
-                cov_eta: DMatrix::from_column_slice(3, 3, cov_eta.as_slice()),
-                d_eta_d_own,
+                cov_eta: dynamic(&chain_covariance(&parts.d_eta_d_v, &parts.cov_v)),
+                d_eta_d_own: own_columns(pole, &d_eta_d_xf),
             })
         };
         Some(own())
+    }
+
+    /// The generic chain on stack matrices, as [`MeasurementModel::linearize_own`] with the
+    /// sensor columns `J_eta_o J_os` and the robot's `J_eta_o J_os J_sr`; a pole shares no
+    /// block.
+    fn linearize_at(
+        &self,
+        pole: &Pole,
+        frame: &SensorFrame,
+    ) -> Option<Result<LinearizedMeasurement>> {
+        let lin = || {
+            let to_sensor = &frame.to_sensor;
+            let (d_centre_d_sensor, d_centre_d_centre) =
+                to_sensor.point2_jacobians(&pole.centre())?;
+            let centre = to_sensor.transform_point2(&pole.centre())?;
+            let parts = self.innovation_parts(pole.radius(), &centre)?;
+            let mut d_xo_d_sensor = Matrix3x6::zeros();
+            d_xo_d_sensor
+                .fixed_view_mut::<2, 6>(1, 0)
+                .copy_from(&d_centre_d_sensor);
+            let d_xo_d_xm = scalar_and_point2(&d_centre_d_centre);
+            let d_eta_d_sensor = chain_product(&parts.d_eta_d_xo, &d_xo_d_sensor);
+            let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, &d_xo_d_xm);
+            let d_eta_d_own = own_columns(pole, &d_eta_d_xf);
+            let d_eta_d_robot = chain_product(&d_eta_d_sensor, &frame.pose.d_sensor_d_robot);
+            Ok(LinearizedMeasurement {
+                eta: DVector::from_column_slice(parts.eta.as_slice()),
+                cov_eta: dynamic(&chain_covariance(&parts.d_eta_d_v, &parts.cov_v)),
+                d_eta_d_robot: DMatrix::from_column_slice(
+                    3,
+                    d_eta_d_robot.ncols(),
+                    d_eta_d_robot.as_slice(),
+                ),
+                d_eta_d_sensor: DMatrix::from_column_slice(3, 6, d_eta_d_sensor.as_slice()),
+                d_eta_d_own,
+                d_eta_d_shared: Vec::new(),
+                d_eta_d_xf: dynamic(&d_eta_d_xf),
+            })
+        };
+        Some(lin())
     }
 
     fn measurement(&self) -> DVector<f64> {

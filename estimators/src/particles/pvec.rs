@@ -7,7 +7,8 @@
 //!
 //! Each node may also keep a [`Summary`] of its subtree (a bounding box of its features, say),
 //! computed when a query first asks for it and forgotten when the subtree is written, so that
-//! [`PVec::iter_where`] skips whole subtrees a query cannot want.
+//! [`PVec::iter_where`] skips whole subtrees a query cannot want. Each element keeps its own
+//! summary the same way, shared by every vector that shares the element.
 
 use std::fmt::Debug;
 use std::sync::{Arc, OnceLock};

@@ -43,9 +43,7 @@ impl PoleObservation {
             sigmas,
         })
     }
-}
 
-impl PoleObservation {
     /// `eta`, `J_eta_o`, `J_eta_v` and `C_v` on the stack for a pole of radius `radius` centred
     /// at `centre` in the sensor frame: the one formula behind
     /// [`MeasurementModel::innovation`] and [`MeasurementModel::linearize_own`].

@@ -261,14 +261,7 @@ impl Feature for Point {
     /// `x_f += B~ dx_p` without forming B~: its rows are unit rows (the hot path of a
     /// landmark EKF, run for every point at every update).
     fn apply_perturbation(&mut self, dx_p: &slam_core::nalgebra::DVector<f64>) -> Result<()> {
-        if dx_p.len() != self.mspace_dim() {
-            return Err(Error::DimensionMismatch {
-                what: "M-space perturbation of a point".into(),
-                expected: self.mspace_dim(),
-                got: dx_p.len(),
-            });
-        }
-        slam_core::ensure_finite(dx_p.as_slice(), "M-space perturbation")?;
+        slam_core::check_perturbation(self.kind(), self.mspace_dim(), dx_p)?;
         let mut position = self.position();
         let mut row = 0;
         for subspace in &self.active {

@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{DMatrix, DVector, Vector2};
 use slam_core::{
     Coincidence, CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch,
-    Subspace, downcast_feature, ensure_finite,
+    Subspace, check_perturbation, downcast_feature,
 };
 
 /// Radius and centre, gained together.
@@ -169,14 +169,7 @@ impl Feature for Pole {
     /// `x_f += dx_p`: a full pole's `B~` is the identity and a tentative pole's has no
     /// columns (Table II), so the default's product `B~ dx_p` is skipped; the same numbers.
     fn apply_perturbation(&mut self, dx_p: &DVector<f64>) -> Result<()> {
-        if dx_p.len() != self.mspace_dim() {
-            return Err(Error::DimensionMismatch {
-                what: format!("M-space perturbation of a {}", self.kind()),
-                expected: self.mspace_dim(),
-                got: dx_p.len(),
-            });
-        }
-        ensure_finite(dx_p.as_slice(), "M-space perturbation")?;
+        check_perturbation(self.kind(), self.mspace_dim(), dx_p)?;
         if self.full {
             let radius = self.radius() + dx_p[0];
             let centre = self.centre() + Vector2::new(dx_p[1], dx_p[2]);

@@ -142,14 +142,7 @@ pub trait Feature: dyn_clone::DynClone + Debug + Send + Sync + Any {
     /// Override only to retract non-linearly; the first-order change must still be `B~ dx_p`
     /// (the conformance suite checks it by central differences).
     fn apply_perturbation(&mut self, dx_p: &DVector<f64>) -> Result<()> {
-        if dx_p.len() != self.mspace_dim() {
-            return Err(Error::DimensionMismatch {
-                what: format!("M-space perturbation of a {}", self.kind()),
-                expected: self.mspace_dim(),
-                got: dx_p.len(),
-            });
-        }
-        ensure_finite(dx_p.as_slice(), "M-space perturbation")?;
+        check_perturbation(self.kind(), self.mspace_dim(), dx_p)?;
         let mut coordinates = self.coordinates().clone();
         coordinates.add_vector(&(self.dual()? * dx_p))?;
         self.set_coordinates(coordinates)
@@ -252,6 +245,27 @@ pub trait Feature: dyn_clone::DynClone + Debug + Send + Sync + Any {
 }
 
 dyn_clone::clone_trait_object!(Feature);
+
+/// What [`Feature::apply_perturbation`] checks before it changes anything: `dx_p` has the
+/// feature's M-space dimension (`mspace_dim`, of a feature of kind `kind`) and is finite.
+/// For the overrides that retract without forming `B~`.
+///
+/// ```
+/// use slam_core::{check_perturbation, nalgebra::DVector};
+/// assert!(check_perturbation("pole", 3, &DVector::zeros(3)).is_ok());
+/// assert!(check_perturbation("pole", 3, &DVector::zeros(2)).is_err());
+/// assert!(check_perturbation("pole", 1, &DVector::from_element(1, f64::NAN)).is_err());
+/// ```
+pub fn check_perturbation(kind: &str, mspace_dim: usize, dx_p: &DVector<f64>) -> Result<()> {
+    if dx_p.len() != mspace_dim {
+        return Err(Error::DimensionMismatch {
+            what: format!("M-space perturbation of a {kind}"),
+            expected: mspace_dim,
+            got: dx_p.len(),
+        });
+    }
+    ensure_finite(dx_p.as_slice(), "M-space perturbation")
+}
 
 /// The concrete feature behind a `&dyn Feature`, if it is an `F`.
 ///

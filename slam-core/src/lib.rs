@@ -43,7 +43,8 @@ pub use coords::{BlockKind, CoordBlock, Coordinates};
 pub use error::{Error, Result, ensure_finite};
 pub use estimator::{Estimator, Observation, Skips, UpdateReport};
 pub use feature::{
-    Coincidence, Feature, Growth, Subspace, downcast_feature, downcast_feature_mut, stack_rows,
+    Coincidence, Feature, Growth, Subspace, check_perturbation, downcast_feature,
+    downcast_feature_mut, stack_rows,
 };
 pub use map::{
     FeatureId, FeatureMap, MapLinearization, RowOwner, RowTransform, SharedBlock, SharedBlockId,

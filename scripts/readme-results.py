@@ -20,11 +20,12 @@ Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
   em-polygon-intel   the em-polygon stage on the Intel lab's corrected poses       ~3 s
   mrclam             slam run --data mrclam:...:1                                  ~1 s
   ipslam-intel       IPSLAM on the Intel lab, odometry seeds 1-3 and paper settings ~5 min
+  carmen-walls       configs/carmen-walls.toml beside MRPT icp-slam and rbpf-slam on the four
+                     Radish logs with noisy odometry, seeds 1-3 (bench-laser-vs-mrpt.sh), and
+                     on the logs' own odometry                                      ~10 min
 `--rows cheap` is ekf-builtin; `--rows all` (the default) is every row above.
 
-Not regenerated here (it runs MRPT's grid SLAM on twelve logs, over an hour; the README names
-the script and commit beside it): the Radish CARMEN logs beside MRPT
-(scripts/real-buildings.sh). The rb2d row installs MRPT (Debian mrpt-apps) when missing.
+The rb2d and carmen-walls rows install MRPT (Debian mrpt-apps) when missing.
 
 Run times are machine figures: a --check of a row with one (rb2d-kfslam, victoria-park,
 victoria-park-fastslam) fails whenever the time moves; read it as "regenerate", not as a
@@ -32,7 +33,9 @@ regression.
 """
 
 import argparse
+import concurrent.futures
 import json
+import math
 import os
 import subprocess
 import sys
@@ -225,6 +228,81 @@ def ipslam_intel(work):
     )
 
 
+def significant(x):
+    """Two significant figures, as the CARMEN row prints its metres (0.083, 0.40, 1.0, 27)."""
+    if x != x:
+        return "nan"
+    decimals = 1 - math.floor(math.log10(abs(x))) if x else 2
+    return f"{x:.{max(0, decimals)}f}"
+
+
+def spread(values, unit=significant):
+    """`lo-hi` of some figures, or the one figure when they print the same."""
+    if not values:
+        return "failed"
+    lo, hi = unit(min(values)), unit(max(values))
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+CARMEN_LOGS = (("intel", "Intel lab"), ("fhw", "fhw"), ("freiburg-079", "freiburg-079"), ("acapulco", "acapulco"))
+
+
+def carmen_walls(work):
+    """`configs/carmen-walls.toml` beside MRPT icp-slam and rbpf-slam on the noisy-odometry
+    versions of the four Radish corrected logs, seeds 1-3, by the peers' script (one file per
+    run, two runs at a time); then the logs' own odometry, ours alone."""
+    script = ROOT.parent / "shared" / "peers" / "bench-laser-vs-mrpt.sh"
+    config = ROOT / "configs" / "carmen-walls.toml"
+    binary = str(Path(ARGS.slam).resolve())
+
+    def beside_mrpt(job):
+        log, seed = job
+        path = DATA / "radish-carmen-corrected" / f"{log}-corrected.log.gz"
+        command = [str(script), str(path), str(seed), str(config), binary]
+        result = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
+        lines = result.stdout.strip().splitlines()
+        folder = next((l.split()[2] for l in lines if l.startswith("work files: ")), None)
+        if result.returncode != 0 or folder is None or not lines[-1].startswith("ATE aligned:"):
+            sys.exit(f"readme-results: {' '.join(command)} failed:\n{result.stderr[-2000:]}")
+        # "ATE aligned: ours = A m; icp-slam = B m; rbpf-slam = C m" (a failed program: "failed")
+        ates = {}
+        for part in lines[-1].split(":", 1)[1].split(";"):
+            name, value = part.split("=")
+            word = value.split()[0]
+            ates[name.strip()] = float(word) if word != "failed" else None
+        reloc = json.loads((Path(folder) / "ours" / "relocalize" / "metrics.json").read_text())
+        ates["reloc"] = reloc["ate_rmse_after_m"]
+        ates["to_wall"] = reloc["median_point_to_wall_after_m"]
+        return log, ates
+
+    jobs = [(log, seed) for log, _ in CARMEN_LOGS for seed in (1, 2, 3)]
+    with concurrent.futures.ThreadPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(beside_mrpt, jobs))
+
+    def figures(log, key):
+        return [a[key] for l, a in results if l == log and a[key] is not None]
+
+    files = "; ".join(
+        f"{label} {spread(figures(log, 'ours'))} ({spread(figures(log, 'reloc'))}) / "
+        f"{spread(figures(log, 'icp-slam'))} / {spread(figures(log, 'rbpf-slam'))} m"
+        for log, label in CARMEN_LOGS
+    )
+    to_wall = ", ".join(
+        f"{label} {spread(figures(log, 'to_wall'), lambda x: f'{100 * x:.1f}')}"
+        for log, label in CARMEN_LOGS
+    )
+    own = []
+    for log, label in CARMEN_LOGS:
+        path = DATA / "radish-carmen-corrected" / f"{log}-corrected.log.gz"
+        out = slam(["run", str(config)], work, f"own-{log}", extra=["--data", f"carmen:{path}"])
+        reloc = json.loads((out / "relocalize" / "metrics.json").read_text())
+        own.append(f"{label.split()[0]} {significant(reloc['ate_rmse_after_m'])}")
+    return (
+        f"{files} (scan points to walls, median, relocalized: {to_wall} cm; with the logs' own "
+        f"odometry: {', '.join(own)} m relocalized)"
+    )
+
+
 # key -> (first cell of the README row, function giving its third cell)
 ROWS = {
     "ekf-builtin": ("built-in world, seed 1 (`slam run`)", ekf_builtin),
@@ -247,6 +325,10 @@ ROWS = {
     "ipslam-intel": (
         "Intel lab (Radish corrected log), IPSLAM, odometry from the poses with noise (4.3 m alone)",
         ipslam_intel,
+    ),
+    "carmen-walls": (
+        "Radish CARMEN logs with noisy odometry (seeds 1-3), `configs/carmen-walls.toml`, beside MRPT on the same files",
+        carmen_walls,
     ),
 }
 

@@ -108,8 +108,7 @@ impl HLine {
     }
 
     fn checked(start: Vector3<f64>, end: Vector3<f64>) -> Result<Coordinates> {
-        let coordinates =
-            Coordinates::new(vec![CoordBlock::Point3(start), CoordBlock::Point3(end)])?;
+        let coordinates = Coordinates::new([CoordBlock::Point3(start), CoordBlock::Point3(end)])?;
         if (start.z - end.z).abs() > Self::HEIGHT_TOLERANCE * start.z.abs().max(1.0) {
             return Err(Error::InvalidArgument(format!(
                 "horizontal line endpoints at different heights {} and {}",
@@ -294,7 +293,7 @@ impl Feature for HLine {
             [CoordBlock::Point3(start), CoordBlock::Point3(end)]
                 if (end.xy() - start.xy()).dot(&(self.end().xy() - self.start().xy())) < 0.0 =>
             {
-                Coordinates::new(vec![CoordBlock::Point3(*end), CoordBlock::Point3(*start)])
+                Coordinates::new([CoordBlock::Point3(*end), CoordBlock::Point3(*start)])
                     .unwrap_or(coordinates)
             }
             _ => coordinates,

@@ -101,7 +101,7 @@ impl Point {
     /// A tentative point (M-space dimension 0).
     pub fn new(position: Vector3<f64>) -> Result<Self> {
         Ok(Point {
-            coordinates: Coordinates::new(vec![CoordBlock::Point3(position)])?,
+            coordinates: Coordinates::new([CoordBlock::Point3(position)])?,
             active: Vec::new(),
         })
     }

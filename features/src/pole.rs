@@ -87,7 +87,7 @@ impl Pole {
 
     fn checked(radius: f64, centre: Vector2<f64>) -> Result<Coordinates> {
         let coordinates =
-            Coordinates::new(vec![CoordBlock::Scalar(radius), CoordBlock::Point2(centre)])?;
+            Coordinates::new([CoordBlock::Scalar(radius), CoordBlock::Point2(centre)])?;
         if radius.is_nan() || radius < Self::MIN_RADIUS {
             return Err(Error::Degenerate(format!(
                 "pole radius {radius} m is below {} m",

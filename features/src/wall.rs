@@ -172,8 +172,7 @@ impl Wall {
     ///
     /// Fails if a coordinate is not finite or the wall is shorter than [`Wall::MIN_LENGTH`].
     pub fn new(start: Vector2<f64>, end: Vector2<f64>) -> Result<Self> {
-        let coordinates =
-            Coordinates::new(vec![CoordBlock::Point2(start), CoordBlock::Point2(end)])?;
+        let coordinates = Coordinates::new([CoordBlock::Point2(start), CoordBlock::Point2(end)])?;
         Segment2::new(start, end, Self::MIN_LENGTH)?;
         Ok(Wall {
             coordinates,
@@ -279,7 +278,7 @@ impl Wall {
             let mut block = d_new_d_old.view_mut((row, 2), (2, 2));
             block += turn;
         }
-        let coordinates = Coordinates::new(vec![
+        let coordinates = Coordinates::new([
             CoordBlock::Point2(start + t * a),
             CoordBlock::Point2(end + t * b),
         ])?;

@@ -3,6 +3,7 @@
 
 use nalgebra::{DVector, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
+use smallvec::SmallVec;
 
 use crate::error::{Error, Result, ensure_finite};
 
@@ -100,14 +101,20 @@ impl CoordBlock {
     }
 
     /// True when every value is finite.
+    #[inline]
     pub fn is_finite(&self) -> bool {
-        self.as_slice().iter().all(|v| v.is_finite())
+        match self {
+            CoordBlock::Point3(p) => p.x.is_finite() && p.y.is_finite() && p.z.is_finite(),
+            CoordBlock::Point2(p) => p.x.is_finite() && p.y.is_finite(),
+            CoordBlock::Scalar(s) => s.is_finite(),
+        }
     }
 }
 
 /// A feature's coordinate list `x_f`: an ordered list of blocks.
 ///
-/// The flat vector view used by B and B~ (paper eqs. 10-12) stacks the blocks in order.
+/// The flat vector view used by B and B~ (paper eqs. 10-12) stacks the blocks in order. Up to
+/// [`INLINE_BLOCKS`] blocks are stored inline, so cloning such a list allocates nothing.
 ///
 /// ```
 /// use slam_core::{CoordBlock, Coordinates, nalgebra::{Vector2, DVector}};
@@ -122,8 +129,11 @@ impl CoordBlock {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(try_from = "Vec<CoordBlock>", into = "Vec<CoordBlock>")]
 pub struct Coordinates {
-    blocks: Vec<CoordBlock>,
+    blocks: SmallVec<[CoordBlock; INLINE_BLOCKS]>,
 }
+
+/// How many blocks a [`Coordinates`] holds without a heap allocation (a wall's or a pole's two).
+pub const INLINE_BLOCKS: usize = 2;
 
 impl TryFrom<Vec<CoordBlock>> for Coordinates {
     type Error = Error;
@@ -134,17 +144,31 @@ impl TryFrom<Vec<CoordBlock>> for Coordinates {
 
 impl From<Coordinates> for Vec<CoordBlock> {
     fn from(coordinates: Coordinates) -> Self {
-        coordinates.blocks
+        coordinates.blocks.into_vec()
     }
 }
 
 impl Coordinates {
-    /// A coordinate list from its blocks; every value must be finite.
-    pub fn new(blocks: Vec<CoordBlock>) -> Result<Self> {
-        for (i, block) in blocks.iter().enumerate() {
-            ensure_block_finite(block, i)?;
+    /// A coordinate list from its blocks (a `Vec`, an array, an iterator); every value must be
+    /// finite.
+    ///
+    /// ```
+    /// use slam_core::{CoordBlock, Coordinates, nalgebra::Vector2};
+    /// let pole = Coordinates::new([CoordBlock::Scalar(0.2), CoordBlock::Point2(Vector2::new(1.0, 2.0))])?;
+    /// assert_eq!(pole.dim(), 3);
+    /// assert!(Coordinates::new([CoordBlock::Scalar(f64::NAN)]).is_err());
+    /// # Ok::<(), slam_core::Error>(())
+    /// ```
+    pub fn new(blocks: impl IntoIterator<Item = CoordBlock>) -> Result<Self> {
+        Self::from_blocks(blocks.into_iter().collect())
+    }
+
+    /// [`Coordinates::new`] from blocks already in their storage.
+    pub(crate) fn from_blocks(blocks: SmallVec<[CoordBlock; INLINE_BLOCKS]>) -> Result<Self> {
+        match blocks.iter().position(|block| !block.is_finite()) {
+            Some(i) => ensure_block_finite(&blocks[i], i).map(|()| Coordinates { blocks }),
+            None => Ok(Coordinates { blocks }),
         }
-        Ok(Coordinates { blocks })
     }
 
     /// The blocks in order.
@@ -222,7 +246,7 @@ impl Coordinates {
             });
         }
         let mut offset = 0;
-        let mut blocks = Vec::with_capacity(self.blocks.len());
+        let mut blocks = SmallVec::<[CoordBlock; INLINE_BLOCKS]>::with_capacity(self.blocks.len());
         for block in &self.blocks {
             blocks.push(CoordBlock::from_slice(
                 block.kind(),
@@ -230,7 +254,7 @@ impl Coordinates {
             )?);
             offset += block.dim();
         }
-        Coordinates::new(blocks)
+        Coordinates::from_blocks(blocks)
     }
 
     /// `x_f += dx`; leaves `self` unchanged and returns an error if the result is not finite.
@@ -242,6 +266,7 @@ impl Coordinates {
 }
 
 /// [`ensure_finite`] for block `index`, the message formatted only on failure.
+#[inline]
 fn ensure_block_finite(block: &CoordBlock, index: usize) -> Result<()> {
     if block.is_finite() {
         Ok(())

@@ -39,7 +39,7 @@ mod transform;
 
 pub use nalgebra;
 
-pub use coords::{BlockKind, CoordBlock, Coordinates};
+pub use coords::{BlockKind, CoordBlock, Coordinates, INLINE_BLOCKS};
 pub use error::{Error, Result, ensure_finite};
 pub use estimator::{Estimator, Observation, Skips, UpdateReport};
 pub use feature::{

@@ -192,8 +192,8 @@ impl MapToSensor {
             .blocks()
             .iter()
             .map(|b| self.transform_block(b))
-            .collect::<Result<Vec<_>>>()?;
-        Coordinates::new(blocks)
+            .collect::<Result<smallvec::SmallVec<[CoordBlock; crate::INLINE_BLOCKS]>>>()?;
+        Coordinates::from_blocks(blocks)
     }
 
     /// `x_o` with `J_of` alone (eq. 19): what a filter over the feature alone needs.

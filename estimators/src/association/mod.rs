@@ -258,7 +258,8 @@ pub(crate) fn candidate_features_in<'a, K>(
             None
         }
     };
-    let mut out = Vec::new();
+    // Room for every offered feature up to a few (the usual case), grown past that.
+    let mut out = Vec::with_capacity(features.size_hint().1.unwrap_or(0).min(16));
     for (key, feature) in features {
         if !measurement.accepts(feature) {
             continue;

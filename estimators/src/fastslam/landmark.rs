@@ -152,13 +152,13 @@ impl<P: RobotPose> Landmark<P> {
             skips.count("update: non-finite state change");
             return;
         }
-        let mut candidate = slam_core::dyn_clone::clone_box(self.feature.as_ref());
-        if candidate.apply_perturbation(&dx).is_err() {
+        // A refused change leaves the feature as it was (the `Feature` contract, checked by
+        // the conformance suite), so no copy is kept to fall back on.
+        if self.feature.apply_perturbation(&dx).is_err() {
             skips.count("update: state change refused by the feature");
             return;
         }
         self.cov = cov;
-        self.feature = candidate;
     }
 
     /// `dx = -K eta` and the Joseph-form covariance `(I - K H) P (I - K H)^T + K C K^T`

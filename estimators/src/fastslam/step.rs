@@ -177,9 +177,11 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
     fn associate(&mut self, observations: &[Observation]) -> Result<Vec<Decision>> {
         let mut decisions: Vec<Option<Decision>> = Vec::with_capacity(observations.len());
         self.chosen = (0..observations.len()).map(|_| None).collect();
-        self.touched.clear();
-        let mut open = Vec::new();
-        let mut lists = Vec::new();
+        // Sized once for the step: each observation pairs, opens or reports at most once.
+        self.touched = Vec::with_capacity(observations.len());
+        self.report.nis.reserve(observations.len());
+        let mut open = Vec::with_capacity(observations.len());
+        let mut lists = Vec::with_capacity(observations.len());
         let particle: &Particle<P, LandmarkMap<P>> = self.particle;
         self.frames = frames_of(&particle.pose, observations);
         self.frames_pose = Some(particle.pose);

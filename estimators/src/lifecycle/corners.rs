@@ -41,7 +41,7 @@ pub(crate) fn corner_partners(
 ) -> Result<Vec<(FeatureId, usize)>> {
     let this = map.get(id)?;
     let value = this.coordinates().blocks()[k];
-    let here = BoundingBox::of(&Coordinates::new(vec![value])?);
+    let here = BoundingBox::of(&Coordinates::new([value])?);
     let mut partners = Vec::new();
     for (other, feature) in map.iter() {
         if other == id

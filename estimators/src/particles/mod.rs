@@ -350,11 +350,35 @@ pub(crate) fn sample_motion<P: RobotPose>(
         .enumerate()
         .map(|(index, pose)| {
             let mut rng = stream(seed, draw, index as u64);
-            let z = DVector::from_fn(control.len(), |_, _| StandardNormal.sample(&mut rng));
-            let sampled = &control + &root * z;
+            let sampled = draw_control(&control, &root, &mut rng);
             motion.apply_control(pose, &sampled)
         })
         .collect()
+}
+
+/// `control + root z` for `z` drawn from `N(0, I)` by `rng`, one allocation (the result):
+/// the products summed column by column, as nalgebra's matrix-vector product does, so the
+/// numbers are those of `&control + &root * z`.
+fn draw_control(control: &DVector<f64>, root: &DMatrix<f64>, rng: &mut ChaCha8Rng) -> DVector<f64> {
+    const STACK: usize = 8;
+    let n = control.len();
+    if n > STACK || root.shape() != (n, n) {
+        let z = DVector::from_fn(n, |_, _| StandardNormal.sample(&mut *rng));
+        return control + root * z;
+    }
+    let mut z = [0.0f64; STACK];
+    for value in z.iter_mut().take(n) {
+        *value = StandardNormal.sample(&mut *rng);
+    }
+    let mut sampled = control.clone();
+    for (i, value) in sampled.iter_mut().enumerate() {
+        let mut product = root[(i, 0)] * z[0];
+        for (j, z_j) in z.iter().enumerate().take(n).skip(1) {
+            product += root[(i, j)] * z_j;
+        }
+        *value += product;
+    }
+    sampled
 }
 
 /// Systematic resampling of `log_weights` when the effective sample size is below

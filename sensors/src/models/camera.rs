@@ -409,7 +409,7 @@ impl MeasurementModel for ImageLineObservation {
             let mut block = d_new_d_old.view_mut((row, 3), (3, 3));
             block += turn;
         }
-        let coordinates = Coordinates::new(vec![
+        let coordinates = Coordinates::new([
             CoordBlock::Point3(start + t * a),
             CoordBlock::Point3(end + t * b),
         ])?;

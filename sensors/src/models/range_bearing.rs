@@ -20,7 +20,7 @@ use super::check_sigmas;
 /// use slam_features::Point;
 /// use slam_core::{MeasurementModel, Coordinates, CoordBlock, nalgebra::Vector3};
 /// let z = RangeBearing::new(5.0, 0.0, 0.1, 0.01).unwrap();
-/// let x_o = Coordinates::new(vec![CoordBlock::Point3(Vector3::new(5.0, 0.0, 0.0))]).unwrap();
+/// let x_o = Coordinates::new([CoordBlock::Point3(Vector3::new(5.0, 0.0, 0.0))]).unwrap();
 /// let point = Point::planar(Vector3::new(5.0, 0.0, 0.0)).unwrap();
 /// assert!(z.innovation(&point, &x_o).unwrap().eta.norm() < 1e-12);
 /// ```

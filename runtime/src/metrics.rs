@@ -58,6 +58,9 @@ pub struct RunMetrics {
     pub ate_rmse_unaligned_m: Option<f64>,
     /// What the ATE compares against.
     pub ate_against: Option<&'static str>,
+    /// Reference fixes the ATE left out as jumps of a GPS receiver
+    /// ([`crate::eval::gps_jumps`]).
+    pub ate_reference_rejected: Option<usize>,
     /// Full statistics of the aligned ATE.
     pub ate: Option<ErrorStats>,
     /// ATE (aligned RMSE) of the path the map belongs to, where it is not the estimates' (a
@@ -161,6 +164,7 @@ impl RunMetrics {
             ate_rmse_m: trajectory.as_ref().map(|t| t.ate_rmse_m),
             ate_rmse_unaligned_m: trajectory.as_ref().map(|t| t.ate_rmse_unaligned_m),
             ate_against: trajectory.as_ref().map(|t| t.against),
+            ate_reference_rejected: trajectory.as_ref().map(|t| t.reference_rejected),
             ate: trajectory.as_ref().map(|t| t.ate),
             map_path_ate_rmse_m,
             map_error_m: map_error.as_ref().map(|m| m.rms_m),

@@ -52,6 +52,53 @@ pub struct TrajectoryErrors {
     /// The alignment of the estimate onto the references.
     #[serde(skip)]
     pub alignment: Alignment,
+    /// Reference fixes left out as jumps of the receiver ([`gps_jumps`]); 0 against poses.
+    pub reference_rejected: usize,
+}
+
+/// The fastest a ground vehicle's GPS antenna is taken to move, m/s (72 km/h): a fix reached
+/// and left faster than this is the receiver's jump ([`gps_jumps`]).
+pub const GPS_MAX_SPEED_MPS: f64 = 20.0;
+
+/// Which GPS fixes are jumps of the receiver, not motion of the vehicle: a fix reached from
+/// its predecessor and left for its successor both faster than [`GPS_MAX_SPEED_MPS`], while
+/// the predecessor and the successor are within that speed of each other (the fix is off on
+/// its own and the path comes back). Decided from the fixes alone, never from an estimate.
+/// Victoria Park's receiver "was failing": one of its 4466 fixes lies 141 m from both
+/// neighbours, reached at 64 m/s and left at 28 m/s.
+///
+/// ```
+/// use slam_runtime::eval::gps_jumps;
+/// use slam_core::nalgebra::Vector2;
+/// let fixes: Vec<(f64, Vector2<f64>)> = [(0.0, 0.0), (1.0, 1.0), (2.0, 140.0), (3.0, 3.0), (4.0, 4.0)]
+///     .iter()
+///     .map(|&(t, x)| (t, Vector2::new(x, 0.0)))
+///     .collect();
+/// assert_eq!(gps_jumps(&fixes), vec![false, false, true, false, false]);
+/// ```
+pub fn gps_jumps(fixes: &[(f64, Vector2<f64>)]) -> Vec<bool> {
+    let speed = |a: &(f64, Vector2<f64>), b: &(f64, Vector2<f64>)| {
+        let dt = (b.0 - a.0).abs();
+        let distance = (b.1 - a.1).norm();
+        if dt > 0.0 {
+            distance / dt
+        } else if distance > 0.0 {
+            f64::INFINITY
+        } else {
+            0.0
+        }
+    };
+    (0..fixes.len())
+        .map(|i| {
+            if i == 0 || i + 1 >= fixes.len() {
+                return false;
+            }
+            let (before, fix, after) = (&fixes[i - 1], &fixes[i], &fixes[i + 1]);
+            speed(before, fix) > GPS_MAX_SPEED_MPS
+                && speed(fix, after) > GPS_MAX_SPEED_MPS
+                && speed(before, after) <= GPS_MAX_SPEED_MPS
+        })
+        .collect()
 }
 
 /// Stamped 3-D poses (z = 0) of `(time, pose)` pairs.
@@ -92,9 +139,13 @@ pub fn path_errors(
                 .map(|(t, p, _)| (*t, *p)),
         )
     };
+    let jumps = gps_jumps(gps);
+    let gps_rejected = jumps.iter().filter(|&&jump| jump).count();
     let gps: Vec<StampedPose> = gps
         .iter()
-        .map(|(t, p)| StampedPose {
+        .zip(&jumps)
+        .filter(|(_, jump)| !**jump)
+        .map(|((t, p), _)| StampedPose {
             time: *t,
             pose: slam_core::Pose3::new(Vector3::new(p.x, p.y, 0.0), 0.0, 0.0, 0.0),
         })
@@ -106,11 +157,11 @@ pub fn path_errors(
         0.0,
     );
     let at_antenna: Vec<StampedPose>;
-    let (gt, against, max_dt, est) = match of_kind(TruthKind::True) {
-        gt if !gt.is_empty() => (gt, "ground truth", 1e-6, est),
+    let (gt, against, max_dt, est, reference_rejected) = match of_kind(TruthKind::True) {
+        gt if !gt.is_empty() => (gt, "ground truth", 1e-6, est, 0),
         _ => match of_kind(TruthKind::Reference) {
             reference if !reference.is_empty() => {
-                (reference, "reference poses of the data", 1e-6, est)
+                (reference, "reference poses of the data", 1e-6, est, 0)
             }
             _ => {
                 at_antenna = est
@@ -120,7 +171,12 @@ pub fn path_errors(
                         pose: s.pose.compose(&antenna),
                     })
                     .collect();
-                (gps, "GPS fixes (positions only)", 0.5, &at_antenna[..])
+                let against = if gps_rejected > 0 {
+                    "GPS fixes (positions only; the receiver's jumps left out)"
+                } else {
+                    "GPS fixes (positions only)"
+                };
+                (gps, against, 0.5, &at_antenna[..], gps_rejected)
             }
         },
     };
@@ -139,6 +195,7 @@ pub fn path_errors(
         ate: aligned.errors,
         against,
         alignment: aligned.alignment,
+        reference_rejected,
     }))
 }
 
@@ -175,5 +232,43 @@ mod tests {
         assert_eq!(at_antenna.against, "GPS fixes (positions only)");
         assert!(at_antenna.ate_rmse_m < 1e-9, "{}", at_antenna.ate_rmse_m);
         assert!(at_origin.ate_rmse_m > 2.0, "{}", at_origin.ate_rmse_m);
+    }
+
+    /// A fix far off on its own is left out of the ATE and counted; a fast move that stays
+    /// (a gap in the fixes, or a receiver that re-converged elsewhere) is kept.
+    #[test]
+    fn gps_jumps_are_left_out_and_counted() {
+        let poses: Vec<(f64, Pose2)> = (0..40)
+            .map(|k| {
+                let x = k as f64;
+                (x, Pose2::new(x, 0.05 * x * x, 0.0))
+            })
+            .collect();
+        let est = stamped(poses.iter().copied());
+        let mut gps: Vec<(f64, Vector2<f64>)> = poses
+            .iter()
+            .map(|(t, p)| (*t, Vector2::new(p.x, p.y)))
+            .collect();
+        let clean = path_errors(&[], &gps, &Vector2::zeros(), &est)
+            .unwrap()
+            .unwrap();
+        gps[20].1.y += 140.0;
+        let with_jump = path_errors(&[], &gps, &Vector2::zeros(), &est)
+            .unwrap()
+            .unwrap();
+        assert_eq!(with_jump.reference_rejected, 1);
+        assert_eq!(with_jump.ate.count, clean.ate.count - 1);
+        assert!(with_jump.ate_rmse_m < 1e-9, "{}", with_jump.ate_rmse_m);
+        assert!(with_jump.against.contains("jumps left out"));
+        // From fix 20 on, every fix 140 m off: the first is reached fast but left slowly.
+        for fix in gps.iter_mut().skip(21) {
+            fix.1.y += 140.0;
+        }
+        let moved = path_errors(&[], &gps, &Vector2::zeros(), &est)
+            .unwrap()
+            .unwrap();
+        assert_eq!(moved.reference_rejected, 0);
+        assert_eq!(moved.ate.count, clean.ate.count);
+        assert!(moved.ate_rmse_m > 10.0, "{}", moved.ate_rmse_m);
     }
 }

@@ -14,7 +14,7 @@ Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
   ekf-builtin        slam run (the built-in world, seed 1)                        ~1 s
   consistency        slam consistency, seeds 1-50 both wall kinds, 101-150 M-space ~5 min
   particle-builtin   slam run with fastslam (100 particles) and ipslam            ~20 s
-  rb2d-kfslam        ../shared/peers/bench-ekf-vs-kfslam.sh seeds 1-3 (MRPT)       ~40 s
+  rb2d-kfslam        ../shared/peers/bench-ekf-vs-kfslam.sh seeds 1-3 (MRPT)       ~90 s
   victoria-park      slam run --data victoria-park:...                            ~7 s
   victoria-park-fastslam  FastSLAM 2.0 on Victoria Park, 100 and 1000 particles  ~4 min
   em-polygon-intel   the em-polygon stage on the Intel lab's corrected poses       ~3 s
@@ -115,7 +115,9 @@ def rb2d_kfslam(work):
     script = ROOT.parent / "shared" / "peers" / "bench-ekf-vs-kfslam.sh"
     ratios, ates = [], []
     for seed in (1, 2, 3):
-        command = [str(script), str(seed), "1000", "50", str(Path(ARGS.slam).resolve())]
+        # 11 interleaved runs each: with 5 the median of one seed moved by a third between
+        # two invocations on an idle machine.
+        command = [str(script), str(seed), "1000", "50", str(Path(ARGS.slam).resolve()), "11"]
         result = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
         last = result.stdout.strip().splitlines()[-1:] or [""]
         if result.returncode != 0 or not last[0].startswith("ratio kf-slam/ours"):
@@ -130,7 +132,7 @@ def rb2d_kfslam(work):
     return (
         f"{cm(ours)} (MRPT kf-slam: {cm(theirs)}), seed 1; per-step CPU "
         f"{min(ratios):.1f}-{max(ratios):.1f} times lower than kf-slam's on the same file in "
-        "one run, seeds 1-3 (`../shared/peers/bench-ekf-vs-kfslam.sh SEED`, medians of 5 "
+        "one run, seeds 1-3 (`../shared/peers/bench-ekf-vs-kfslam.sh SEED`, medians of 11 "
         'interleaved runs; an earlier "ten times" compared runs of different days)'
     )
 

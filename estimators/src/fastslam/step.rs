@@ -1,6 +1,7 @@
 //! One particle's update step: association against its own map, then, observation by
 //! observation, pairing (weight, EKF update, lifecycle) or a new feature, then pruning.
 
+use std::rc::Rc;
 use std::sync::Arc;
 
 use rand_chacha::ChaCha8Rng;
@@ -103,8 +104,9 @@ pub(super) struct ParticleStep<'a, 'c, P: RobotPose> {
     pub weighted: Vec<bool>,
     /// The particle's random stream for this step (FastSLAM 2.0).
     pub rng: ChaCha8Rng,
-    /// Each observation's sensor frame at `frames_pose`, made for the association.
-    frames: Vec<Option<SensorFrame>>,
+    /// Each observation's sensor frame at `frames_pose`, made for the association (shared by
+    /// the observations of one mounting).
+    frames: Vec<Option<Rc<SensorFrame>>>,
     /// The particle's pose when the frames were made.
     frames_pose: Option<P>,
     /// Each observation's chosen pair with its linearization at `frames_pose`.
@@ -136,11 +138,13 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
     /// The sensor frame of observation `index` at the particle's pose: the association's
     /// (taken: each observation is paired once) while the pose has not moved since, else a
     /// new one.
-    fn frame(&mut self, index: usize, observation: &Observation) -> Option<SensorFrame> {
+    fn frame(&mut self, index: usize, observation: &Observation) -> Option<Rc<SensorFrame>> {
         let made = self.frames.get_mut(index).and_then(Option::take);
         match made {
             Some(frame) if self.frames_pose == Some(self.particle.pose) => Some(frame),
-            _ => SensorFrame::new(&self.particle.pose, &observation.robot_from_sensor).ok(),
+            _ => SensorFrame::new(&self.particle.pose, &observation.robot_from_sensor)
+                .ok()
+                .map(Rc::new),
         }
     }
 
@@ -201,7 +205,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
                         self.context,
                         &mut self.report,
                         observation,
-                        frames[index].as_ref(),
+                        frames[index].as_deref(),
                         &placed[index],
                         &nearby,
                     ));
@@ -462,18 +466,20 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
 }
 
 /// The sensor frame of each observation from `world_from_robot`, made once per sensor: a
-/// run of observations from the same mounting shares one (a clone of the same numbers).
+/// run of observations from the same mounting shares one.
 fn frames_of<P: RobotPose>(
     world_from_robot: &P,
     observations: &[Observation],
-) -> Vec<Option<SensorFrame>> {
-    let mut frames: Vec<Option<SensorFrame>> = Vec::with_capacity(observations.len());
+) -> Vec<Option<Rc<SensorFrame>>> {
+    let mut frames: Vec<Option<Rc<SensorFrame>>> = Vec::with_capacity(observations.len());
     for (index, observation) in observations.iter().enumerate() {
         let same_sensor =
             index > 0 && observations[index - 1].robot_from_sensor == observation.robot_from_sensor;
         let frame = match frames.last() {
             Some(previous) if same_sensor => previous.clone(),
-            _ => SensorFrame::new(world_from_robot, &observation.robot_from_sensor).ok(),
+            _ => SensorFrame::new(world_from_robot, &observation.robot_from_sensor)
+                .ok()
+                .map(Rc::new),
         };
         frames.push(frame);
     }
@@ -492,7 +498,7 @@ fn near_any<'f, P: RobotPose>(
     particle: &'f Particle<P, LandmarkMap<P>>,
     context: &StepContext<'_>,
     observations: &[Observation],
-    frames: &[Option<SensorFrame>],
+    frames: &[Option<Rc<SensorFrame>>],
 ) -> (Vec<Nearby<'f>>, Vec<Placed>) {
     let placed: Vec<Placed> = observations
         .iter()

@@ -136,12 +136,25 @@ fn draw_references(figure: &mut Figure, output: &RunOutput) {
         figure.legend(kind, palette::TRUE_PATH);
     }
     if !record.gps.is_empty() {
-        figure.dots(
-            record.gps.iter().map(|(_, g)| *g).collect(),
-            palette::GPS,
-            2,
-        );
-        figure.legend(format!("{} GPS fixes", record.gps.len()), palette::GPS);
+        // The receiver's jumps, which the ATE leaves out, apart from the fixes it uses.
+        let jumps = slam_runtime::eval::gps_jumps(&record.gps);
+        let (left_out, used): (Vec<_>, Vec<_>) =
+            record.gps.iter().zip(&jumps).partition(|(_, jump)| **jump);
+        figure.dots(used.iter().map(|((_, g), _)| *g).collect(), palette::GPS, 2);
+        figure.legend(format!("{} GPS fixes", used.len()), palette::GPS);
+        if !left_out.is_empty() {
+            for ((_, g), _) in &left_out {
+                figure.marker(*g, palette::GPS_JUMP, 9, false);
+            }
+            figure.legend(
+                format!(
+                    "{} GPS {} (left out of the ATE)",
+                    left_out.len(),
+                    if left_out.len() == 1 { "jump" } else { "jumps" }
+                ),
+                palette::GPS_JUMP,
+            );
+        }
     }
 }
 

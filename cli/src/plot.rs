@@ -41,6 +41,8 @@ pub mod palette {
     pub const POINT: Colour = plotters::style::RGBColor(200, 120, 0);
     /// GPS fixes.
     pub const GPS: Colour = plotters::style::RGBColor(90, 170, 220);
+    /// GPS fixes left out of the ATE as the receiver's jumps.
+    pub const GPS_JUMP: Colour = plotters::style::RGBColor(230, 0, 230);
     /// Trajectories.
     pub const PATH: Colour = plotters::style::RGBColor(200, 30, 30);
     /// Ground truth trajectories.

@@ -1,10 +1,21 @@
-//! The dense state covariance of an EKF, in faer: the one module where faer types live
+//! The state covariance of an EKF, in faer: the one module where faer types live
 //! (DESIGN.md: "large dense covariance work in faer, kept behind one internal module").
 //!
-//! Only the **lower triangle** (with the diagonal) is stored and kept up to date; reads go
-//! through [`StateCovariance::get`], which mirrors. The update `C -= W W^T` then touches the
-//! lower half of `C` once per step (faer's triangular matmul), which is as fast as memory
-//! bandwidth allows (`../shared/DEPENDENCIES.md`: about 3.3 ms at n = 3000).
+//! Only the **lower triangle** (with the diagonal) of the correlated rows is stored and kept
+//! up to date; reads go through [`StateCovariance::get`], which mirrors. The update
+//! `C -= W W^T` then touches the lower half of that block once per step (faer's triangular
+//! matmul), which is as fast as memory bandwidth allows (`../shared/DEPENDENCIES.md`: about
+//! 3.3 ms at n = 3000).
+//!
+//! **Rows that nothing correlates** (a tree's radius: its residual depends on the radius
+//! alone, and its prior is uncorrelated) are kept apart, as a variance, not as a row and a
+//! column of zeros in the dense block. A measurement row whose Jacobian touches only such a
+//! row, with noise uncorrelated with the other rows, updates it on its own (the dense update
+//! with that row and column included would give the same result: the covariance and the
+//! noise are block-diagonal); anything that would correlate it (another measurement row
+//! touching it, a cross-covariance, a re-parameterization) first moves it into the dense
+//! block. On Victoria Park a third of the state and of every update's rank are radii, so the
+//! dense downdate, `O(n^2 m)`, shrinks to about `(2/3)^3` of the work.
 
 use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
@@ -12,14 +23,30 @@ use faer::{Accum, Mat, Par};
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{Error, Result};
 
+/// Where a state row's covariance is kept.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Slot {
+    /// Row and column `k` of the dense lower triangle.
+    Dense(usize),
+    /// A row uncorrelated with every other row: its variance.
+    Alone(f64),
+}
+
 /// A symmetric positive semi-definite covariance over the state rows `0..dim`, with the
 /// directions the measurements cannot observe (see [`StateCovariance::generators`]).
 #[derive(Clone, Debug)]
 pub(crate) struct StateCovariance {
-    /// Lower triangle valid; entries above the diagonal are unspecified.
+    /// Lower triangle valid over the dense rows (in the order of `dense_rows`); entries above
+    /// the diagonal are unspecified.
     lower: Mat<f64>,
     /// Rows and columns reserved (faer keeps its capacity private).
     capacity: usize,
+    /// Where each state row is kept.
+    slots: Vec<Slot>,
+    /// The state row of each dense row. The first state rows (the pose, created by
+    /// [`StateCovariance::dense`]) are the first dense rows, in order: rows are appended at
+    /// the end and [`StateCovariance::compact`] keeps the order.
+    dense_rows: Vec<usize>,
     /// `dim x 3`: the state change of a world translation along x, along y and a rotation
     /// about z, as the filter's linearizations have carried it (observability-constrained
     /// EKF, Huang, Mourikis & Roumeliotis 2010): each row is set when the row is created and
@@ -28,27 +55,60 @@ pub(crate) struct StateCovariance {
     generators: DMatrix<f64>,
 }
 
+/// An EKF update computed but not yet applied to the covariance.
+#[derive(Debug)]
+pub(crate) struct PreparedUpdate {
+    /// `W = C H^T L^{-T}` over the dense rows (`dense rows x m`).
+    w: Mat<f64>,
+    /// The new variances of the rows updated on their own: `(state row, variance)`.
+    alone: Vec<(usize, f64)>,
+    /// The state change `dx` (eq. 31).
+    pub(crate) dx: DVector<f64>,
+}
+
 impl StateCovariance {
-    /// A zero covariance of dimension `dim`.
+    /// A zero covariance of dimension `dim` (every row dense).
+    #[cfg(test)]
     pub(crate) fn zeros(dim: usize) -> Self {
         StateCovariance {
             lower: Mat::zeros(dim, dim),
             capacity: dim,
+            slots: (0..dim).map(Slot::Dense).collect(),
+            dense_rows: (0..dim).collect(),
             generators: DMatrix::zeros(dim, 3),
         }
     }
 
+    /// The covariance `block` with unobservable directions `generators`, every row in the
+    /// dense block (the pose: [`StateCovariance::predict`] works on the first rows there).
+    pub(crate) fn dense(block: &DMatrix<f64>, generators: &DMatrix<f64>) -> Self {
+        let mut cov = StateCovariance {
+            lower: Mat::zeros(0, 0),
+            capacity: 0,
+            slots: Vec::new(),
+            dense_rows: Vec::new(),
+            generators: DMatrix::zeros(0, 3),
+        };
+        cov.append_rows(block, None, generators, false);
+        cov
+    }
+
     /// The number of state rows.
     pub(crate) fn dim(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// The number of rows in the dense block.
+    fn dense_dim(&self) -> usize {
         self.lower.nrows()
     }
 
     /// Entry `(i, j)` (either triangle).
     pub(crate) fn get(&self, i: usize, j: usize) -> f64 {
-        if i >= j {
-            self.lower[(i, j)]
-        } else {
-            self.lower[(j, i)]
+        match (self.slots[i], self.slots[j]) {
+            (Slot::Dense(a), Slot::Dense(b)) => self.lower[(a.max(b), a.min(b))],
+            (Slot::Alone(variance), _) if i == j => variance,
+            _ => 0.0,
         }
     }
 
@@ -57,11 +117,11 @@ impl StateCovariance {
         DMatrix::from_fn(rows.len(), cols.len(), |a, b| self.get(rows[a], cols[b]))
     }
 
-    /// `C[:, cols]` as a faer matrix (`dim x cols.len()`).
-    fn columns(&self, cols: &[usize]) -> Mat<f64> {
-        let n = self.dim();
-        let mut out = Mat::zeros(n, cols.len());
-        for (b, &j) in cols.iter().enumerate() {
+    /// The dense block's columns `dense_cols` as a faer matrix (`dense rows x cols.len()`).
+    fn columns(&self, dense_cols: &[usize]) -> Mat<f64> {
+        let n = self.dense_dim();
+        let mut out = Mat::zeros(n, dense_cols.len());
+        for (b, &j) in dense_cols.iter().enumerate() {
             let column = out.col_as_slice_mut(b);
             // Rows below the diagonal: contiguous in column j.
             column[j..n].copy_from_slice(&self.lower.col_as_slice(j)[j..n]);
@@ -88,6 +148,18 @@ impl StateCovariance {
         cross: Option<&DMatrix<f64>>,
         generators: &DMatrix<f64>,
     ) -> std::ops::Range<usize> {
+        self.append_rows(block, cross, generators, true)
+    }
+
+    /// [`StateCovariance::append`]; with `allow_alone` a new row that nothing correlates is
+    /// kept apart from the dense block.
+    fn append_rows(
+        &mut self,
+        block: &DMatrix<f64>,
+        cross: Option<&DMatrix<f64>>,
+        generators: &DMatrix<f64>,
+        allow_alone: bool,
+    ) -> std::ops::Range<usize> {
         let old = self.dim();
         let added = block.nrows();
         let new = old + added;
@@ -97,29 +169,81 @@ impl StateCovariance {
             stacked.rows_mut(old, added).copy_from(generators);
         }
         self.generators = stacked;
-        if self.capacity < new {
-            self.capacity = new.max(2 * old).max(16);
-            self.lower.reserve(self.capacity, self.capacity);
+        if let Some(cross) = cross {
+            for j in 0..old {
+                if (0..added).any(|a| cross[(a, j)] != 0.0) {
+                    self.promote(j);
+                }
+            }
         }
-        self.lower.resize_with(new, new, |_, _| 0.0);
+        let alone: Vec<bool> = (0..added)
+            .map(|a| {
+                allow_alone
+                    && (0..added).all(|b| b == a || (block[(a, b)] == 0.0 && block[(b, a)] == 0.0))
+                    && cross.is_none_or(|cross| cross.row(a).iter().all(|&v| v == 0.0))
+            })
+            .collect();
+        let first_dense = self.dense_dim();
+        self.grow_dense(alone.iter().filter(|&&a| !a).count());
+        let mut next_dense = first_dense;
+        for (a, &is_alone) in alone.iter().enumerate() {
+            if is_alone {
+                self.slots.push(Slot::Alone(block[(a, a)]));
+            } else {
+                self.slots.push(Slot::Dense(next_dense));
+                self.dense_rows.push(old + a);
+                next_dense += 1;
+            }
+        }
         for a in 0..added {
-            for b in 0..=a {
-                self.lower[(old + a, old + b)] = 0.5 * (block[(a, b)] + block[(b, a)]);
+            let Slot::Dense(row) = self.slots[old + a] else {
+                continue;
+            };
+            for b in 0..added {
+                if let Slot::Dense(col) = self.slots[old + b]
+                    && col <= row
+                {
+                    self.lower[(row, col)] = 0.5 * (block[(a, b)] + block[(b, a)]);
+                }
             }
             if let Some(cross) = cross {
                 for j in 0..old {
-                    self.lower[(old + a, j)] = cross[(a, j)];
+                    if let Slot::Dense(col) = self.slots[j] {
+                        self.lower[(row, col)] = cross[(a, j)];
+                    }
                 }
             }
         }
         old..new
     }
 
+    /// Adds `added` zero rows and columns to the dense block (amortized `O(dense rows)` each).
+    fn grow_dense(&mut self, added: usize) {
+        let new = self.dense_dim() + added;
+        if self.capacity < new {
+            self.capacity = new.max(2 * self.dense_dim()).max(16);
+            self.lower.reserve(self.capacity, self.capacity);
+        }
+        self.lower.resize_with(new, new, |_, _| 0.0);
+    }
+
+    /// Moves state row `row` into the dense block (a no-op when it is there).
+    fn promote(&mut self, row: usize) {
+        if let Slot::Alone(variance) = self.slots[row] {
+            let k = self.dense_dim();
+            self.grow_dense(1);
+            self.lower[(k, k)] = variance;
+            self.slots[row] = Slot::Dense(k);
+            self.dense_rows.push(row);
+        }
+    }
+
     /// The prediction step (eqs. 26-27) on the pose rows `0..d`:
     /// `C_rr = J_rr C_rr J_rr^T + added`, `C_rp = J_rr C_rp`.
     pub(crate) fn predict(&mut self, d_pose_d_pose: &DMatrix<f64>, added: &DMatrix<f64>) {
         let d = d_pose_d_pose.nrows();
-        let n = self.dim();
+        let n = self.dense_dim();
+        debug_assert!((0..d).all(|i| self.slots[i] == Slot::Dense(i)));
         let pose: Vec<usize> = (0..d).collect();
         let c_rr = self.gather(&pose, &pose);
         let new_rr = d_pose_d_pose * c_rr * d_pose_d_pose.transpose() + added;
@@ -131,7 +255,8 @@ impl StateCovariance {
         let moved = d_pose_d_pose * self.generators.rows(0, d);
         self.generators.rows_mut(0, d).copy_from(&moved);
         // Rows d.. of columns 0..d hold C_pr = C_rp^T; C_pr <- C_pr J_rr^T, column by
-        // column (contiguous in the column-major lower triangle).
+        // column (contiguous in the column-major lower triangle). Rows kept apart have no
+        // cross-covariance with the pose.
         let old: Vec<Vec<f64>> = (0..d)
             .map(|l| self.lower.col_as_slice(l)[d..n].to_vec())
             .collect();
@@ -169,16 +294,20 @@ impl StateCovariance {
         Ok(dx)
     }
 
-    /// The state change and gain of [`StateCovariance::update`], without touching the
-    /// covariance: [`StateCovariance::commit`] applies it once the state change is accepted.
+    /// The state change and gain of [`StateCovariance::update`], without changing the
+    /// covariance (it may move rows into the dense block, which changes no value):
+    /// [`StateCovariance::commit`] applies it once the state change is accepted.
+    ///
+    /// The measurement rows that touch only one row kept apart (and whose noise is
+    /// uncorrelated with the other rows) update that row on their own; the others make one
+    /// dense update.
     pub(crate) fn prepare_update(
-        &self,
+        &mut self,
         indices: &[usize],
         h: &DMatrix<f64>,
         r: &DMatrix<f64>,
         eta: &DVector<f64>,
     ) -> Result<PreparedUpdate> {
-        let n = self.dim();
         let m = h.nrows();
         if h.ncols() != indices.len() || r.shape() != (m, m) || eta.len() != m {
             return Err(Error::DimensionMismatch {
@@ -187,28 +316,120 @@ impl StateCovariance {
                 got: eta.len(),
             });
         }
-        if m == 0 {
-            return Ok(PreparedUpdate {
-                w: Mat::zeros(n, 0),
-                dx: DVector::zeros(n),
-            });
+        let separate = self.separate_groups(indices, h, r);
+        let mut in_group = vec![false; m];
+        for (_, rows) in &separate {
+            for &row in rows {
+                in_group[row] = true;
+            }
         }
+        let dense_measurement_rows: Vec<usize> = (0..m).filter(|&row| !in_group[row]).collect();
+        let mut dx = DVector::<f64>::zeros(self.dim());
+        let w = self.prepare_dense(indices, h, r, eta, &dense_measurement_rows, &mut dx)?;
+        let mut alone = Vec::with_capacity(separate.len());
+        for (t, rows) in &separate {
+            let state_row = indices[*t];
+            let Slot::Alone(variance) = self.slots[state_row] else {
+                return Err(Error::Invariant("a separate update on a dense row".into()));
+            };
+            let (change, new_variance) = alone_update(variance, *t, rows, h, r, eta)?;
+            dx[state_row] = change;
+            alone.push((state_row, new_variance));
+        }
+        if !dx.iter().all(|v| v.is_finite()) {
+            return Err(Error::NonFinite("EKF state change".into()));
+        }
+        Ok(PreparedUpdate { w, alone, dx })
+    }
+
+    /// The columns `t` of `h` on rows kept apart that a group of measurement rows updates on
+    /// its own, with those rows; every other kept-apart column that `h` touches is moved into
+    /// the dense block.
+    fn separate_groups(
+        &mut self,
+        indices: &[usize],
+        h: &DMatrix<f64>,
+        r: &DMatrix<f64>,
+    ) -> Vec<(usize, Vec<usize>)> {
+        let m = h.nrows();
+        // The one column each measurement row touches, if it touches exactly one.
+        let only_column: Vec<Option<usize>> = (0..m)
+            .map(|row| {
+                let mut touched = (0..indices.len()).filter(|&t| h[(row, t)] != 0.0);
+                match (touched.next(), touched.next()) {
+                    (Some(t), None) => Some(t),
+                    _ => None,
+                }
+            })
+            .collect();
+        let mut groups = Vec::new();
+        for (t, &state_row) in indices.iter().enumerate() {
+            if !matches!(self.slots[state_row], Slot::Alone(_)) {
+                continue;
+            }
+            let rows: Vec<usize> = (0..m).filter(|&row| h[(row, t)] != 0.0).collect();
+            if rows.is_empty() {
+                continue;
+            }
+            let confined = rows.iter().all(|&row| only_column[row] == Some(t));
+            let listed_once = indices.iter().filter(|&&i| i == state_row).count() == 1;
+            let noise_apart = rows.iter().all(|&a| {
+                (0..m).all(|b| rows.contains(&b) || (r[(a, b)] == 0.0 && r[(b, a)] == 0.0))
+            });
+            if confined && listed_once && noise_apart {
+                groups.push((t, rows));
+            } else {
+                self.promote(state_row);
+            }
+        }
+        groups
+    }
+
+    /// The dense update on the measurement rows `rows` (their columns all on dense rows):
+    /// writes its state change into `dx` and returns `W` over the dense rows.
+    fn prepare_dense(
+        &self,
+        indices: &[usize],
+        h: &DMatrix<f64>,
+        r: &DMatrix<f64>,
+        eta: &DVector<f64>,
+        rows: &[usize],
+        dx: &mut DVector<f64>,
+    ) -> Result<Mat<f64>> {
+        let n = self.dense_dim();
+        let m = rows.len();
+        if m == 0 {
+            return Ok(Mat::zeros(n, 0));
+        }
+        // (column of h, dense row) of every column on a dense row.
+        let columns: Vec<(usize, usize)> = indices
+            .iter()
+            .enumerate()
+            .filter_map(|(t, &i)| match self.slots[i] {
+                Slot::Dense(k) => Some((t, k)),
+                Slot::Alone(_) => None,
+            })
+            .collect();
+        let dense_cols: Vec<usize> = columns.iter().map(|&(_, k)| k).collect();
         // C H^T over the nonzeros of H only: each measurement row touches the pose and one
         // feature's rows, so H is block-sparse and this is O(n nnz(H)) instead of O(n m |T|).
-        let c_cols = self.columns(indices);
+        let c_cols = self.columns(&dense_cols);
         let mut pht = Mat::<f64>::zeros(n, m);
-        for (t, column) in (0..indices.len()).map(|t| (t, c_cols.col_as_slice(t))) {
-            for r in 0..m {
-                let weight = h[(r, t)];
+        for (c, &(t, _)) in columns.iter().enumerate() {
+            let column = c_cols.col_as_slice(c);
+            for (q, &row) in rows.iter().enumerate() {
+                let weight = h[(row, t)];
                 if weight != 0.0 {
-                    for (target, value) in pht.col_as_slice_mut(r).iter_mut().zip(column) {
+                    for (target, value) in pht.col_as_slice_mut(q).iter_mut().zip(column) {
                         *target += weight * value;
                     }
                 }
             }
         }
-        let pht_t = DMatrix::from_fn(indices.len(), m, |a, b| pht[(indices[a], b)]);
-        let s = h * pht_t + r;
+        let h_dense = DMatrix::from_fn(m, columns.len(), |q, c| h[(rows[q], columns[c].0)]);
+        let pht_t = DMatrix::from_fn(columns.len(), m, |c, q| pht[(columns[c].1, q)]);
+        let r_dense = DMatrix::from_fn(m, m, |a, b| r[(rows[a], rows[b])]);
+        let s = h_dense * pht_t + r_dense;
         let s = 0.5 * (&s + s.transpose());
         let cholesky = s
             .cholesky()
@@ -221,37 +442,42 @@ impl StateCovariance {
         }
         let mut w = pht;
         solve_lower_triangular_in_place(l.as_ref(), w.as_mut().transpose_mut(), Par::Seq);
-        let mut whitened = Mat::<f64>::from_fn(m, 1, |i, _| eta[i]);
+        let mut whitened = Mat::<f64>::from_fn(m, 1, |q, _| eta[rows[q]]);
         solve_lower_triangular_in_place(l.as_ref(), whitened.as_mut(), Par::Seq);
-        let mut dx = DVector::<f64>::zeros(n);
+        let mut dense_dx = vec![0.0; n];
         for k in 0..m {
             let weight = whitened[(k, 0)];
-            for (value, w_ik) in dx.iter_mut().zip(w.col_as_slice(k)) {
+            for (value, w_ik) in dense_dx.iter_mut().zip(w.col_as_slice(k)) {
                 *value -= w_ik * weight;
             }
         }
-        if !dx.iter().all(|v| v.is_finite()) {
-            return Err(Error::NonFinite("EKF state change".into()));
+        for (&state_row, value) in self.dense_rows.iter().zip(dense_dx) {
+            dx[state_row] = value;
         }
-        Ok(PreparedUpdate { w, dx })
+        Ok(w)
     }
 
-    /// Applies a prepared update's covariance downdate `C -= W W^T`.
+    /// Applies a prepared update: the dense downdate `C -= W W^T` and the new variances of
+    /// the rows updated on their own.
     pub(crate) fn commit(&mut self, prepared: PreparedUpdate) {
-        if prepared.w.ncols() == 0 || prepared.w.nrows() != self.dim() {
-            return;
+        if prepared.w.ncols() > 0 && prepared.w.nrows() == self.dense_dim() {
+            triangular::matmul(
+                &mut self.lower,
+                BlockStructure::TriangularLower,
+                Accum::Add,
+                &prepared.w,
+                BlockStructure::Rectangular,
+                prepared.w.transpose(),
+                BlockStructure::Rectangular,
+                -1.0,
+                Par::Seq,
+            );
         }
-        triangular::matmul(
-            &mut self.lower,
-            BlockStructure::TriangularLower,
-            Accum::Add,
-            &prepared.w,
-            BlockStructure::Rectangular,
-            prepared.w.transpose(),
-            BlockStructure::Rectangular,
-            -1.0,
-            Par::Seq,
-        );
+        for (row, variance) in prepared.alone {
+            if let Slot::Alone(old) = &mut self.slots[row] {
+                *old = variance;
+            }
+        }
     }
 
     /// Replaces the rows `old` by `t.nrows()` new rows `t dx_old` (a linear
@@ -273,7 +499,11 @@ impl StateCovariance {
         let n = self.dim();
         let all: Vec<usize> = (0..n).collect();
         let c_old_all = self.gather(old, &all);
-        let cross = t * &c_old_all; // new x all
+        let mut cross = t * &c_old_all; // new x all
+        // The old rows are dropped below: no cross-covariance with them is kept.
+        for &i in old {
+            cross.column_mut(i).fill(0.0);
+        }
         let c_old_old = self.gather(old, old);
         let block = t * c_old_old * t.transpose();
         let generators = t * self.generators(old);
@@ -287,6 +517,7 @@ impl StateCovariance {
 
     /// Maps the rows `rows` in place by the square `t`: `dx_rows' = t dx_rows`, so
     /// `C[rows, :] <- t C[rows, :]` and `C[rows, rows] <- t C[rows, rows] t^T`; `O(n k)`.
+    /// The rows move into the dense block.
     pub(crate) fn transform_rows(&mut self, rows: &[usize], t: &DMatrix<f64>) -> Result<()> {
         let k = rows.len();
         if t.shape() != (k, k) {
@@ -309,13 +540,17 @@ impl StateCovariance {
         for (a, &i) in rows.iter().enumerate() {
             self.generators.row_mut(i).copy_from(&moved.row(a));
         }
+        for &i in rows {
+            self.promote(i);
+        }
         for (a, &i) in rows.iter().enumerate() {
+            let Slot::Dense(row) = self.slots[i] else {
+                return Err(Error::Invariant("a transformed row is not dense".into()));
+            };
             for j in 0..n {
-                let value = new_rows[(a, j)];
-                if i >= j {
-                    self.lower[(i, j)] = value;
-                } else {
-                    self.lower[(j, i)] = value;
+                // Rows kept apart are uncorrelated with these: their entries are zero.
+                if let Slot::Dense(col) = self.slots[j] {
+                    self.lower[(row.max(col), row.min(col))] = new_rows[(a, j)];
                 }
             }
         }
@@ -325,22 +560,38 @@ impl StateCovariance {
     /// Removes the rows flagged in `dropped`; returns the old-to-new index map.
     pub(crate) fn compact(&mut self, dropped: &[bool]) -> Vec<Option<usize>> {
         let n = self.dim();
+        let is_dropped = |i: usize| dropped.get(i).copied().unwrap_or(false);
         let mut map = vec![None; n];
         let mut kept = Vec::with_capacity(n);
         for (i, slot) in map.iter_mut().enumerate() {
-            if !dropped.get(i).copied().unwrap_or(false) {
+            if !is_dropped(i) {
                 *slot = Some(kept.len());
                 kept.push(i);
             }
         }
-        let mut lower = Mat::zeros(kept.len(), kept.len());
-        for (b, &j) in kept.iter().enumerate() {
-            for (a, &i) in kept.iter().enumerate().skip(b) {
+        // The kept dense rows, in their dense order (so the pose stays first).
+        let kept_dense: Vec<usize> = (0..self.dense_dim())
+            .filter(|&k| !is_dropped(self.dense_rows[k]))
+            .collect();
+        let mut lower = Mat::zeros(kept_dense.len(), kept_dense.len());
+        for (b, &j) in kept_dense.iter().enumerate() {
+            for (a, &i) in kept_dense.iter().enumerate().skip(b) {
                 lower[(a, b)] = self.lower[(i.max(j), i.min(j))];
             }
         }
-        self.capacity = kept.len();
+        let mut slots: Vec<Slot> = kept.iter().map(|&i| self.slots[i]).collect();
+        let mut dense_rows = Vec::with_capacity(kept_dense.len());
+        for (new_dense, &k) in kept_dense.iter().enumerate() {
+            let Some(new_row) = map[self.dense_rows[k]] else {
+                continue;
+            };
+            slots[new_row] = Slot::Dense(new_dense);
+            dense_rows.push(new_row);
+        }
+        self.capacity = kept_dense.len();
         self.lower = lower;
+        self.slots = slots;
+        self.dense_rows = dense_rows;
         self.generators = self.generators.select_rows(&kept);
         map
     }
@@ -352,13 +603,33 @@ impl StateCovariance {
     }
 }
 
-/// An EKF update computed but not yet applied to the covariance.
-#[derive(Debug)]
-pub(crate) struct PreparedUpdate {
-    /// `W = C H^T L^{-T}` (`dim x m`).
-    w: Mat<f64>,
-    /// The state change `dx` (eq. 31).
-    pub(crate) dx: DVector<f64>,
+/// The update of one row kept apart, of variance `variance`, by the measurement rows `rows`
+/// (which touch only column `t` of `h`): eqs. 28-32 for a one-row state, in the same form as
+/// the dense update. Returns the state change and the new variance.
+fn alone_update(
+    variance: f64,
+    t: usize,
+    rows: &[usize],
+    h: &DMatrix<f64>,
+    r: &DMatrix<f64>,
+    eta: &DVector<f64>,
+) -> Result<(f64, f64)> {
+    let k = rows.len();
+    let h_column = DVector::from_fn(k, |a, _| h[(rows[a], t)]);
+    let r_block = DMatrix::from_fn(k, k, |a, b| r[(rows[a], rows[b])]);
+    let s = &h_column * h_column.transpose() * variance + r_block;
+    let s = 0.5 * (&s + s.transpose());
+    let cholesky = s
+        .cholesky()
+        .ok_or_else(|| Error::Singular("innovation covariance S of an EKF update".into()))?;
+    let l = cholesky.l();
+    let singular = || Error::Singular("Cholesky factor of S".into());
+    let w = l
+        .solve_lower_triangular(&(h_column * variance))
+        .ok_or_else(singular)?;
+    let eta_rows = DVector::from_fn(k, |a, _| eta[rows[a]]);
+    let whitened = l.solve_lower_triangular(&eta_rows).ok_or_else(singular)?;
+    Ok((-w.dot(&whitened), variance - w.dot(&w)))
 }
 
 /// A faer copy of a small nalgebra matrix.
@@ -465,6 +736,116 @@ mod tests {
         }
         let expected = &f * &c * f.transpose();
         assert!((cov.to_dense() - expected).amax() < 1e-12);
+    }
+
+    /// The textbook update (eqs. 28-32) on a full dense matrix: `(dx, C')`.
+    fn textbook(
+        c: &DMatrix<f64>,
+        indices: &[usize],
+        h_small: &DMatrix<f64>,
+        r: &DMatrix<f64>,
+        eta: &DVector<f64>,
+    ) -> (DVector<f64>, DMatrix<f64>) {
+        let mut h = DMatrix::zeros(h_small.nrows(), c.nrows());
+        for (b, &j) in indices.iter().enumerate() {
+            h.column_mut(j).copy_from(&h_small.column(b));
+        }
+        let s = &h * c * h.transpose() + r;
+        let k = c * h.transpose() * s.try_inverse().unwrap();
+        (-&k * eta, c - &k * &h * c)
+    }
+
+    #[test]
+    fn rows_kept_apart_update_like_the_dense_filter() {
+        let mut cov = StateCovariance::dense(&random_spd(5, 13), &DMatrix::zeros(5, 3));
+        let apart = DMatrix::from_diagonal(&DVector::from_vec(vec![0.3, 0.5, 0.2]));
+        assert_eq!(cov.append(&apart, None, &DMatrix::zeros(3, 3)), 5..8);
+        assert!((5..8).all(|i| matches!(cov.slots[i], Slot::Alone(_))));
+        let mut c = cov.to_dense();
+        // Rows 0-1 touch dense rows and row 5 (which must join the dense block), row 2 only
+        // row 6 (apart), rows 3-4 only row 7, with correlated noise between them (apart).
+        let indices = [0, 1, 5, 6, 7];
+        let h = DMatrix::from_row_slice(
+            5,
+            5,
+            &[
+                1.0, 0.5, -0.7, 0.0, 0.0, //
+                0.2, -1.0, 0.3, 0.0, 0.0, //
+                0.0, 0.0, 0.0, 1.0, 0.0, //
+                0.0, 0.0, 0.0, 0.0, 1.0, //
+                0.0, 0.0, 0.0, 0.0, -2.0,
+            ],
+        );
+        let mut r = DMatrix::from_diagonal(&DVector::from_vec(vec![0.04, 0.09, 0.01, 0.02, 0.03]));
+        r[(3, 4)] = 0.01;
+        r[(4, 3)] = 0.01;
+        let eta = DVector::from_vec(vec![0.3, -0.2, 0.1, -0.05, 0.2]);
+        let dx = cov.update(&indices, &h, &r, &eta).unwrap();
+        let (expected_dx, expected_c) = textbook(&c, &indices, &h, &r, &eta);
+        assert!((dx - expected_dx).amax() < 1e-12);
+        assert!((cov.to_dense() - &expected_c).amax() < 1e-12);
+        assert!(matches!(cov.slots[5], Slot::Dense(_)));
+        assert!(matches!(cov.slots[6], Slot::Alone(_)));
+        assert!(matches!(cov.slots[7], Slot::Alone(_)));
+        // Noise correlated with a dense row's brings row 6 into the dense block.
+        c = expected_c;
+        let indices = [0, 6];
+        let h = DMatrix::from_row_slice(2, 2, &[1.0, 0.0, 0.0, 1.0]);
+        let r = DMatrix::from_row_slice(2, 2, &[0.04, 0.01, 0.01, 0.02]);
+        let eta = DVector::from_vec(vec![0.1, -0.1]);
+        let dx = cov.update(&indices, &h, &r, &eta).unwrap();
+        let (expected_dx, expected_c) = textbook(&c, &indices, &h, &r, &eta);
+        assert!((dx - expected_dx).amax() < 1e-12);
+        assert!((cov.to_dense() - &expected_c).amax() < 1e-12);
+        assert!(matches!(cov.slots[6], Slot::Dense(_)));
+        assert!(matches!(cov.slots[7], Slot::Alone(_)));
+    }
+
+    #[test]
+    fn rows_kept_apart_survive_compact_transform_and_prediction() {
+        let mut cov = StateCovariance::dense(&random_spd(4, 17), &DMatrix::zeros(4, 3));
+        let apart = DMatrix::from_diagonal(&DVector::from_vec(vec![0.3, 0.5, 0.2]));
+        cov.append(&apart, None, &DMatrix::zeros(3, 3));
+        let correlated = random_spd(2, 19);
+        let cross = DMatrix::from_fn(2, 7, |i, j| if j < 4 { 0.01 * (i + j) as f64 } else { 0.0 });
+        cov.append(&correlated, Some(&cross), &DMatrix::zeros(2, 3));
+        assert!(matches!(cov.slots[7], Slot::Dense(4)));
+        let before = cov.to_dense();
+        // Drop dense row 2 and row 5 (apart).
+        let mut dropped = vec![false; 9];
+        dropped[2] = true;
+        dropped[5] = true;
+        let map = cov.compact(&dropped);
+        let kept: Vec<usize> = (0..9).filter(|&i| !dropped[i]).collect();
+        assert_eq!(map[6], Some(4));
+        assert_eq!(
+            cov.to_dense(),
+            before.select_rows(&kept).select_columns(&kept)
+        );
+        // A transform mixing a row kept apart (4, was 6) with a dense one (5, was 7).
+        let before = cov.to_dense();
+        let rows = [4, 5];
+        let t = DMatrix::from_row_slice(2, 2, &[1.0, 0.3, -0.2, 1.5]);
+        cov.transform_rows(&rows, &t).unwrap();
+        let mut f = DMatrix::identity(7, 7);
+        for (a, &i) in rows.iter().enumerate() {
+            for (b, &j) in rows.iter().enumerate() {
+                f[(i, j)] = t[(a, b)];
+            }
+        }
+        let expected = &f * &before * f.transpose();
+        assert!((cov.to_dense() - &expected).amax() < 1e-12);
+        // The prediction leaves the rows kept apart uncorrelated with the pose.
+        let j = DMatrix::from_row_slice(3, 3, &[1.0, 0.0, -0.4, 0.0, 1.0, 0.7, 0.0, 0.0, 1.0]);
+        let q = DMatrix::from_diagonal(&DVector::from_vec(vec![0.01, 0.02, 0.003]));
+        cov.predict(&j, &q);
+        let mut f = DMatrix::identity(7, 7);
+        f.view_mut((0, 0), (3, 3)).copy_from(&j);
+        let mut expected = &f * &expected * f.transpose();
+        let mut block = expected.view_mut((0, 0), (3, 3));
+        block += &q;
+        assert!((cov.to_dense() - &expected).amax() < 1e-12);
+        assert!(matches!(cov.slots[3], Slot::Alone(_)));
     }
 
     #[test]

@@ -280,8 +280,7 @@ impl<P: RobotPose> Ekf<P> {
             });
         }
         slam_core::ensure_finite(pose_covariance.as_slice(), "initial pose covariance")?;
-        let mut cov = StateCovariance::zeros(0);
-        cov.append(&pose_covariance, None, &pose_generators(&pose));
+        let cov = StateCovariance::dense(&pose_covariance, &pose_generators(&pose));
         let gates = Gates::new(&[params.gate_probability, params.new_feature_probability])?;
         Ok(Ekf {
             params,

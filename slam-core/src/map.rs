@@ -380,6 +380,37 @@ impl FeatureMap {
     /// perturbations are applied with each feature's B~ at its pre-update coordinates, then
     /// shared blocks move in every member. All or nothing: on error the map is unchanged.
     pub fn apply(&mut self, perturbations: &[(RowOwner, DVector<f64>)]) -> Result<()> {
+        self.apply_all(
+            perturbations
+                .iter()
+                .map(|(owner, dx)| (*owner, Perturbation::Vector(dx))),
+        )
+    }
+
+    /// [`FeatureMap::apply`] with each owner's perturbation read from the state change `dx`
+    /// at the owner's state rows (`dx_owner[k] = dx[rows[k]]`), without a vector per owner:
+    /// a filter's update moves every feature it holds.
+    ///
+    /// ```
+    /// use slam_core::{FeatureId, FeatureMap, RowOwner};
+    /// let mut map = FeatureMap::new();
+    /// let rows = [(RowOwner::Feature(FeatureId(7)), vec![3, 4])];
+    /// let moved = map.apply_at_rows(rows.iter().map(|(o, r)| (*o, r.as_slice())), &[0.0; 5]);
+    /// assert!(moved.is_err()); // no feature 7 in the map
+    /// ```
+    pub fn apply_at_rows<'a>(
+        &mut self,
+        rows: impl Iterator<Item = (RowOwner, &'a [usize])> + Clone,
+        dx: &'a [f64],
+    ) -> Result<()> {
+        self.apply_all(rows.map(move |(owner, rows)| (owner, Perturbation::Rows(rows, dx))))
+    }
+
+    /// [`FeatureMap::apply`] over any source of perturbations (two passes: own, then shared).
+    fn apply_all<'a>(
+        &mut self,
+        perturbations: impl Iterator<Item = (RowOwner, Perturbation<'a>)> + Clone,
+    ) -> Result<()> {
         // Applied in place; on error every touched feature gets its coordinates back.
         let mut saved: Vec<(usize, crate::Coordinates)> = Vec::new();
         let mut touched = vec![false; self.features.len()];
@@ -395,9 +426,9 @@ impl FeatureMap {
         result
     }
 
-    fn apply_in_place(
+    fn apply_in_place<'a>(
         &mut self,
-        perturbations: &[(RowOwner, DVector<f64>)],
+        perturbations: impl Iterator<Item = (RowOwner, Perturbation<'a>)> + Clone,
         saved: &mut Vec<(usize, crate::Coordinates)>,
         touched: &mut [bool],
     ) -> Result<()> {
@@ -407,7 +438,8 @@ impl FeatureMap {
                 saved.push((index, feature.coordinates().clone()));
             }
         };
-        for (owner, dx) in perturbations {
+        let mut scratch = Scratch::default();
+        for (owner, perturbation) in perturbations.clone() {
             if let RowOwner::Feature(id) = owner {
                 let feature = self
                     .features
@@ -418,13 +450,14 @@ impl FeatureMap {
                         id: id.0,
                     })?;
                 save(id.0, feature, touched);
-                feature.apply_perturbation(dx)?;
+                feature.apply_perturbation(perturbation.vector(&mut scratch)?)?;
             }
         }
         let mut shared_values = Vec::new();
-        for (owner, dx) in perturbations {
+        for (owner, perturbation) in perturbations {
             if let RowOwner::Shared(id) = owner {
-                let shared = self.shared_block(*id)?;
+                let dx = perturbation.vector(&mut scratch)?;
+                let shared = self.shared_block(id)?;
                 if dx.len() != shared.value.dim() {
                     return Err(Error::DimensionMismatch {
                         what: "shared block perturbation".into(),
@@ -549,5 +582,44 @@ impl FeatureMap {
             }
         }
         Ok(())
+    }
+}
+
+/// One owner's perturbation: a vector, or its rows of a state change.
+#[derive(Clone, Copy)]
+enum Perturbation<'a> {
+    Vector(&'a DVector<f64>),
+    Rows(&'a [usize], &'a [f64]),
+}
+
+/// Vectors of every length met, reused for [`Perturbation::Rows`].
+#[derive(Default)]
+struct Scratch(Vec<DVector<f64>>);
+
+impl<'a> Perturbation<'a> {
+    /// The perturbation as a vector (rows of a state change are gathered into `scratch`).
+    fn vector<'s>(self, scratch: &'s mut Scratch) -> Result<&'s DVector<f64>>
+    where
+        'a: 's,
+    {
+        match self {
+            Perturbation::Vector(dx) => Ok(dx),
+            Perturbation::Rows(rows, dx) => {
+                let k = rows.len();
+                while scratch.0.len() <= k {
+                    let len = scratch.0.len();
+                    scratch.0.push(DVector::zeros(len));
+                }
+                let vector = &mut scratch.0[k];
+                for (value, &row) in vector.iter_mut().zip(rows) {
+                    *value = *dx.get(row).ok_or_else(|| Error::DimensionMismatch {
+                        what: "state change rows".into(),
+                        expected: row + 1,
+                        got: dx.len(),
+                    })?;
+                }
+                Ok(vector)
+            }
+        }
     }
 }

@@ -254,9 +254,41 @@ impl StateCovariance {
         }
         let moved = d_pose_d_pose * self.generators.rows(0, d);
         self.generators.rows_mut(0, d).copy_from(&moved);
-        // Rows d.. of columns 0..d hold C_pr = C_rp^T; C_pr <- C_pr J_rr^T, column by
-        // column (contiguous in the column-major lower triangle). Rows kept apart have no
-        // cross-covariance with the pose.
+        // Rows d.. of columns 0..d hold C_pr = C_rp^T; C_pr <- C_pr J_rr^T, row by row in
+        // one pass over the d columns (contiguous in the column-major lower triangle). Rows
+        // kept apart have no cross-covariance with the pose.
+        if d == 3 {
+            let j = d_pose_d_pose;
+            let (c0, rest) = self.lower.as_mut().split_at_col_mut(1);
+            let (c1, c2) = rest.split_at_col_mut(1);
+            let (c0, c1, c2) = (c0.col_mut(0), c1.col_mut(0), c2.col_mut(0));
+            let (Some(c0), Some(c1), Some(c2)) = (
+                c0.try_as_col_major_mut(),
+                c1.try_as_col_major_mut(),
+                c2.try_as_col_major_mut(),
+            ) else {
+                self.predict_cross_general(d_pose_d_pose);
+                return;
+            };
+            let rows = c0.as_slice_mut()[d..n]
+                .iter_mut()
+                .zip(&mut c1.as_slice_mut()[d..n])
+                .zip(&mut c2.as_slice_mut()[d..n]);
+            for ((a, b), c) in rows {
+                let (x, y, z) = (*a, *b, *c);
+                *a = j[(0, 0)] * x + j[(0, 1)] * y + j[(0, 2)] * z;
+                *b = j[(1, 0)] * x + j[(1, 1)] * y + j[(1, 2)] * z;
+                *c = j[(2, 0)] * x + j[(2, 1)] * y + j[(2, 2)] * z;
+            }
+        } else {
+            self.predict_cross_general(d_pose_d_pose);
+        }
+    }
+
+    /// `C_pr <- C_pr J_rr^T` for any pose dimension, column by column.
+    fn predict_cross_general(&mut self, d_pose_d_pose: &DMatrix<f64>) {
+        let d = d_pose_d_pose.nrows();
+        let n = self.dense_dim();
         let old: Vec<Vec<f64>> = (0..d)
             .map(|l| self.lower.col_as_slice(l)[d..n].to_vec())
             .collect();

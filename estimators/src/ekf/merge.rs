@@ -78,7 +78,9 @@ impl<P: RobotPose> Ekf<P> {
             .map
             .iter()
             .filter(|(other, f)| {
-                if *other == id || f.kind() != feature.kind() || !self.is_confirmed(*other) {
+                // The separation first: it rules out all but a few of the map's features, and
+                // is cheaper than the confirmation lookup.
+                if *other == id || f.kind() != feature.kind() {
                     return false;
                 }
                 let Some(d) = f
@@ -87,10 +89,11 @@ impl<P: RobotPose> Ekf<P> {
                 else {
                     return false;
                 };
-                d <= self.params.merge_distance
+                let near = d <= self.params.merge_distance
                     || (point_like
                         && d <= self.params.association_margin
-                        && d * d <= gate * 2.0 * (own + self.coincidence_variance(*other).0))
+                        && d * d <= gate * 2.0 * (own + self.coincidence_variance(*other).0));
+                near && self.is_confirmed(*other)
             })
             .map(|(other, _)| other)
             .collect())

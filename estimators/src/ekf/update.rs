@@ -218,12 +218,12 @@ impl<P: RobotPose> Ekf<P> {
     /// All or nothing: on error the state is unchanged.
     pub(super) fn apply_state_change(&mut self, dx: &DVector<f64>) -> Result<()> {
         let pose = self.pose.oplus(&dx.as_slice()[..P::DIM])?;
-        let perturbations: Vec<(RowOwner, DVector<f64>)> = self
-            .rows
-            .iter()
-            .map(|(owner, rows)| (*owner, DVector::from_fn(rows.len(), |k, _| dx[rows[k]])))
-            .collect();
-        self.map.apply(&perturbations)?;
+        self.map.apply_at_rows(
+            self.rows
+                .iter()
+                .map(|(owner, rows)| (*owner, rows.as_slice())),
+            dx.as_slice(),
+        )?;
         self.pose = pose;
         Ok(())
     }

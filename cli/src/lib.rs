@@ -18,7 +18,6 @@ pub mod error;
 mod eval;
 mod extract;
 mod figures;
-mod mcap_log;
 mod outputs;
 mod outset;
 mod plot;

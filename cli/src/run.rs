@@ -7,12 +7,12 @@ use std::sync::atomic::AtomicBool;
 use slam_runtime::eval::stamped;
 use slam_runtime::g2o::{G2oObserver, g2o_text};
 use slam_runtime::grid::GridObserver;
+use slam_runtime::mcap_log::McapLog;
 use slam_runtime::{Config, Observer, PostProcessOutput, RunMetrics, RunOutput, RunResults};
 use slam_sensors::data::{write_atomically, write_tum};
 
 use crate::error::{CliError, Result};
 use crate::figures::{run_figure, stage_figure};
-use crate::mcap_log::McapLog;
 use crate::outputs::{
     create_dir, map_json, plain_map_json, write_estimates_csv, write_json, write_text,
     write_trajectory,

@@ -46,6 +46,7 @@ pub mod frontend;
 pub mod g2o;
 pub mod grid;
 pub mod health;
+pub mod mcap_log;
 mod metrics;
 pub mod postprocess;
 mod record;

@@ -691,6 +691,24 @@ mod tests {
         cov
     }
 
+    /// The `n x n` map of [`StateCovariance::transform_rows`]: `t` on `rows`, identity elsewhere.
+    fn rows_transform(n: usize, rows: &[usize], t: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut f = DMatrix::identity(n, n);
+        for (a, &i) in rows.iter().enumerate() {
+            for (b, &j) in rows.iter().enumerate() {
+                f[(i, j)] = t[(a, b)];
+            }
+        }
+        f
+    }
+
+    /// The `n x n` transition of [`StateCovariance::predict`]: `j` on the pose rows.
+    fn pose_transition(n: usize, j: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut f = DMatrix::identity(n, n);
+        f.view_mut((0, 0), j.shape()).copy_from(j);
+        f
+    }
+
     #[test]
     fn update_matches_the_textbook_equations() {
         let n = 9;
@@ -720,8 +738,7 @@ mod tests {
         let j = DMatrix::from_row_slice(3, 3, &[1.0, 0.0, -0.4, 0.0, 1.0, 0.7, 0.0, 0.0, 1.0]);
         let q = DMatrix::from_diagonal(&DVector::from_vec(vec![0.01, 0.02, 0.003]));
         cov.predict(&j, &q);
-        let mut f = DMatrix::identity(7, 7);
-        f.view_mut((0, 0), (3, 3)).copy_from(&j);
+        let f = pose_transition(7, &j);
         let mut expected = &f * &c * f.transpose();
         let mut block = expected.view_mut((0, 0), (3, 3));
         block += &q;
@@ -760,12 +777,7 @@ mod tests {
         let rows = [5, 2];
         let t = DMatrix::from_row_slice(2, 2, &[1.0, 0.3, -0.2, 1.5]);
         cov.transform_rows(&rows, &t).unwrap();
-        let mut f = DMatrix::identity(7, 7);
-        for (a, &i) in rows.iter().enumerate() {
-            for (b, &j) in rows.iter().enumerate() {
-                f[(i, j)] = t[(a, b)];
-            }
-        }
+        let f = rows_transform(7, &rows, &t);
         let expected = &f * &c * f.transpose();
         assert!((cov.to_dense() - expected).amax() < 1e-12);
     }
@@ -859,20 +871,14 @@ mod tests {
         let rows = [4, 5];
         let t = DMatrix::from_row_slice(2, 2, &[1.0, 0.3, -0.2, 1.5]);
         cov.transform_rows(&rows, &t).unwrap();
-        let mut f = DMatrix::identity(7, 7);
-        for (a, &i) in rows.iter().enumerate() {
-            for (b, &j) in rows.iter().enumerate() {
-                f[(i, j)] = t[(a, b)];
-            }
-        }
+        let f = rows_transform(7, &rows, &t);
         let expected = &f * &before * f.transpose();
         assert!((cov.to_dense() - &expected).amax() < 1e-12);
         // The prediction leaves the rows kept apart uncorrelated with the pose.
         let j = DMatrix::from_row_slice(3, 3, &[1.0, 0.0, -0.4, 0.0, 1.0, 0.7, 0.0, 0.0, 1.0]);
         let q = DMatrix::from_diagonal(&DVector::from_vec(vec![0.01, 0.02, 0.003]));
         cov.predict(&j, &q);
-        let mut f = DMatrix::identity(7, 7);
-        f.view_mut((0, 0), (3, 3)).copy_from(&j);
+        let f = pose_transition(7, &j);
         let mut expected = &f * &expected * f.transpose();
         let mut block = expected.view_mut((0, 0), (3, 3));
         block += &q;

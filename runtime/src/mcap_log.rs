@@ -15,17 +15,20 @@
 //! ranges are rounded to 0.1 mm. The
 //! writer keeps one chunk (about 1 MiB) in memory; the chunks are not compressed (no C
 //! compression library is linked).
+//!
+//! [`McapLog`] is an [`Observer`]: a program with its own session loop writes the same file by
+//! passing it to the run and calling [`McapLog::finish`] at the end.
 
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+use crate::eval::{anchor_covariance, confirmed};
+use crate::{Observer, RuntimeError};
 use serde_json::{Value, json};
 use slam_core::nalgebra::{Matrix2, Vector2, Vector3};
 use slam_core::{Estimator, Pose2, Pose3, Shape, UpdateReport};
-use slam_runtime::eval::{anchor_covariance, confirmed};
-use slam_runtime::{Observer, RuntimeError};
 use slam_sensors::{Event, LaserScan, TimedEvent};
 
 /// The scale of a 2-D covariance ellipse holding 95 % of the probability: `sqrt(chi2_2(0.95))`.
@@ -183,7 +186,7 @@ fn write_error(path: &Path, error: impl std::fmt::Display) -> RuntimeError {
 impl McapLog {
     /// Creates `path` with its schemas and channels; the map is logged every `map_interval_s`
     /// seconds of data time.
-    pub fn create(path: &Path, map_interval_s: f64) -> slam_runtime::Result<Self> {
+    pub fn create(path: &Path, map_interval_s: f64) -> crate::Result<Self> {
         let file = File::create(path).map_err(|e| write_error(path, e))?;
         let options = mcap::WriteOptions::new()
             .compression(None)
@@ -223,12 +226,7 @@ impl McapLog {
         })
     }
 
-    fn write(
-        &mut self,
-        topic: &'static str,
-        nanos: u64,
-        message: &Value,
-    ) -> slam_runtime::Result<()> {
+    fn write(&mut self, topic: &'static str, nanos: u64, message: &Value) -> crate::Result<()> {
         let channel_id = *self
             .channels
             .get(topic)
@@ -245,7 +243,7 @@ impl McapLog {
             .map_err(|e| write_error(&self.path, e))
     }
 
-    fn scan(&mut self, time: f64, scan: &LaserScan, mount: &Pose3) -> slam_runtime::Result<()> {
+    fn scan(&mut self, time: f64, scan: &LaserScan, mount: &Pose3) -> crate::Result<()> {
         let (stamp, nanos) = stamp(time);
         let last = scan.bearing(scan.ranges.len().saturating_sub(1));
         // JSON has no infinity or NaN: such readings are written as 0 (no return).
@@ -263,7 +261,7 @@ impl McapLog {
         self.write("/scan", nanos, &message)
     }
 
-    fn pose(&mut self, time: f64, estimator: &dyn Estimator<Pose2>) -> slam_runtime::Result<()> {
+    fn pose(&mut self, time: f64, estimator: &dyn Estimator<Pose2>) -> crate::Result<()> {
         let world_from_robot = estimator.pose();
         if !world_from_robot.is_finite() {
             return Ok(());
@@ -299,7 +297,7 @@ impl McapLog {
     /// The confirmed map at `time`: one entity per feature (`feature-<id>`), sent again only
     /// when its drawing moved by more than [`MAP_CHANGE_M`], and deleted when the feature
     /// left the map; the first map is always written.
-    fn map(&mut self, time: f64, estimator: &dyn Estimator<Pose2>) -> slam_runtime::Result<()> {
+    fn map(&mut self, time: f64, estimator: &dyn Estimator<Pose2>) -> crate::Result<()> {
         let (stamp, nanos) = stamp(time);
         let mut entities = Vec::new();
         let mut present = std::collections::BTreeSet::new();
@@ -398,7 +396,7 @@ impl McapLog {
     }
 
     /// Logs the final map (unless logged at the last step already) and completes the file.
-    pub fn finish(mut self, estimator: &dyn Estimator<Pose2>) -> slam_runtime::Result<()> {
+    pub fn finish(mut self, estimator: &dyn Estimator<Pose2>) -> crate::Result<()> {
         if let Some(time) = self.last_time
             && self.last_map != Some(time)
         {
@@ -419,7 +417,7 @@ impl Observer for McapLog {
         event: &TimedEvent,
         _: Option<&UpdateReport>,
         _: &dyn Estimator<Pose2>,
-    ) -> slam_runtime::Result<()> {
+    ) -> crate::Result<()> {
         if let Event::Scan {
             scan,
             robot_from_sensor,
@@ -430,11 +428,7 @@ impl Observer for McapLog {
         Ok(())
     }
 
-    fn step_end(
-        &mut self,
-        time: f64,
-        estimator: &dyn Estimator<Pose2>,
-    ) -> slam_runtime::Result<()> {
+    fn step_end(&mut self, time: f64, estimator: &dyn Estimator<Pose2>) -> crate::Result<()> {
         self.pose(time, estimator)?;
         self.last_time = Some(time);
         let due = self
@@ -482,9 +476,8 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("run.mcap");
         let config =
-            slam_runtime::Config::from_toml("[estimator]\ntype = \"dead-reckoning\"\n", "t")
-                .unwrap();
-        let start = slam_runtime::Start {
+            crate::Config::from_toml("[estimator]\ntype = \"dead-reckoning\"\n", "t").unwrap();
+        let start = crate::Start {
             pose: Pose2::new(1.0, 2.0, 0.5),
             covariance: slam_core::nalgebra::DMatrix::identity(3, 3) * 0.01,
         };

@@ -53,6 +53,12 @@ pub(crate) struct StateCovariance {
     /// then follows the same linear maps as the covariance (prediction, re-parameterization),
     /// never the updates.
     generators: DMatrix<f64>,
+    /// The pose transition `J = J_k ... J_1` of the predictions since the cross-covariance
+    /// of the pose with the other rows was last brought up to date, or `None` when it is:
+    /// the true `C_pr` is the stored one times `J^T`. Odometry usually comes faster than the
+    /// sensors (10 predictions per laser frame on Victoria Park), so the `O(n)` pass of the
+    /// prediction runs once per update instead of once per prediction.
+    pending: Option<DMatrix<f64>>,
 }
 
 /// An EKF update computed but not yet applied to the covariance.
@@ -76,6 +82,7 @@ impl StateCovariance {
             slots: (0..dim).map(Slot::Dense).collect(),
             dense_rows: (0..dim).collect(),
             generators: DMatrix::zeros(dim, 3),
+            pending: None,
         }
     }
 
@@ -88,6 +95,7 @@ impl StateCovariance {
             slots: Vec::new(),
             dense_rows: Vec::new(),
             generators: DMatrix::zeros(0, 3),
+            pending: None,
         };
         cov.append_rows(block, None, generators, false);
         cov
@@ -106,7 +114,16 @@ impl StateCovariance {
     /// Entry `(i, j)` (either triangle).
     pub(crate) fn get(&self, i: usize, j: usize) -> f64 {
         match (self.slots[i], self.slots[j]) {
-            (Slot::Dense(a), Slot::Dense(b)) => self.lower[(a.max(b), a.min(b))],
+            (Slot::Dense(a), Slot::Dense(b)) => {
+                let (row, col) = (a.max(b), a.min(b));
+                match &self.pending {
+                    // A pose row against another: the stored entries times the pending J^T.
+                    Some(j) if col < j.nrows() && row >= j.nrows() => (0..j.ncols())
+                        .map(|l| self.lower[(row, l)] * j[(col, l)])
+                        .sum(),
+                    _ => self.lower[(row, col)],
+                }
+            }
             (Slot::Alone(variance), _) if i == j => variance,
             _ => 0.0,
         }
@@ -160,6 +177,7 @@ impl StateCovariance {
         generators: &DMatrix<f64>,
         allow_alone: bool,
     ) -> std::ops::Range<usize> {
+        self.flush();
         let old = self.dim();
         let added = block.nrows();
         let new = old + added;
@@ -229,6 +247,7 @@ impl StateCovariance {
 
     /// Moves state row `row` into the dense block (a no-op when it is there).
     fn promote(&mut self, row: usize) {
+        self.flush();
         if let Slot::Alone(variance) = self.slots[row] {
             let k = self.dense_dim();
             self.grow_dense(1);
@@ -239,10 +258,13 @@ impl StateCovariance {
     }
 
     /// The prediction step (eqs. 26-27) on the pose rows `0..d`:
-    /// `C_rr = J_rr C_rr J_rr^T + added`, `C_rp = J_rr C_rp`.
+    /// `C_rr = J_rr C_rr J_rr^T + added`, `C_rp = J_rr C_rp` (the latter deferred, see
+    /// `pending`).
     pub(crate) fn predict(&mut self, d_pose_d_pose: &DMatrix<f64>, added: &DMatrix<f64>) {
         let d = d_pose_d_pose.nrows();
-        let n = self.dense_dim();
+        if self.pending.as_ref().is_some_and(|j| j.nrows() != d) {
+            self.flush();
+        }
         debug_assert!((0..d).all(|i| self.slots[i] == Slot::Dense(i)));
         let pose: Vec<usize> = (0..d).collect();
         let c_rr = self.gather(&pose, &pose);
@@ -254,11 +276,26 @@ impl StateCovariance {
         }
         let moved = d_pose_d_pose * self.generators.rows(0, d);
         self.generators.rows_mut(0, d).copy_from(&moved);
-        // Rows d.. of columns 0..d hold C_pr = C_rp^T; C_pr <- C_pr J_rr^T, row by row in
-        // one pass over the d columns (contiguous in the column-major lower triangle). Rows
-        // kept apart have no cross-covariance with the pose.
+        // C_pr <- C_pr J_rr^T, deferred: the transitions compose until something reads or
+        // changes the cross-covariance in place (`flush`).
+        self.pending = Some(match self.pending.take() {
+            Some(pending) => d_pose_d_pose * pending,
+            None => d_pose_d_pose.clone(),
+        });
+    }
+
+    /// Brings the pose's cross-covariance up to date with the pending transition `J`:
+    /// `C_pr <- C_pr J^T`, row by row in one pass over the pose's columns (contiguous in the
+    /// column-major lower triangle; rows kept apart have no cross-covariance with the pose).
+    /// The filter calls it before an update's association, which reads the cross-covariance
+    /// many times.
+    pub(crate) fn flush(&mut self) {
+        let Some(j) = self.pending.take() else {
+            return;
+        };
+        let d = j.nrows();
+        let n = self.dense_dim();
         if d == 3 {
-            let j = d_pose_d_pose;
             let (c0, rest) = self.lower.as_mut().split_at_col_mut(1);
             let (c1, c2) = rest.split_at_col_mut(1);
             let (c0, c1, c2) = (c0.col_mut(0), c1.col_mut(0), c2.col_mut(0));
@@ -267,7 +304,7 @@ impl StateCovariance {
                 c1.try_as_col_major_mut(),
                 c2.try_as_col_major_mut(),
             ) else {
-                self.predict_cross_general(d_pose_d_pose);
+                self.predict_cross_general(&j);
                 return;
             };
             let rows = c0.as_slice_mut()[d..n]
@@ -281,7 +318,7 @@ impl StateCovariance {
                 *c = j[(2, 0)] * x + j[(2, 1)] * y + j[(2, 2)] * z;
             }
         } else {
-            self.predict_cross_general(d_pose_d_pose);
+            self.predict_cross_general(&j);
         }
     }
 
@@ -340,6 +377,7 @@ impl StateCovariance {
         r: &DMatrix<f64>,
         eta: &DVector<f64>,
     ) -> Result<PreparedUpdate> {
+        self.flush();
         let m = h.nrows();
         if h.ncols() != indices.len() || r.shape() != (m, m) || eta.len() != m {
             return Err(Error::DimensionMismatch {
@@ -492,6 +530,7 @@ impl StateCovariance {
     /// Applies a prepared update: the dense downdate `C -= W W^T` and the new variances of
     /// the rows updated on their own.
     pub(crate) fn commit(&mut self, prepared: PreparedUpdate) {
+        self.flush();
         if prepared.w.ncols() > 0 && prepared.w.nrows() == self.dense_dim() {
             triangular::matmul(
                 &mut self.lower,
@@ -521,6 +560,7 @@ impl StateCovariance {
         old: &[usize],
         t: &DMatrix<f64>,
     ) -> Result<Vec<Option<usize>>> {
+        self.flush();
         if t.ncols() != old.len() {
             return Err(Error::DimensionMismatch {
                 what: "re-parameterization".into(),
@@ -551,6 +591,7 @@ impl StateCovariance {
     /// `C[rows, :] <- t C[rows, :]` and `C[rows, rows] <- t C[rows, rows] t^T`; `O(n k)`.
     /// The rows move into the dense block.
     pub(crate) fn transform_rows(&mut self, rows: &[usize], t: &DMatrix<f64>) -> Result<()> {
+        self.flush();
         let k = rows.len();
         if t.shape() != (k, k) {
             return Err(Error::DimensionMismatch {
@@ -591,6 +632,7 @@ impl StateCovariance {
 
     /// Removes the rows flagged in `dropped`; returns the old-to-new index map.
     pub(crate) fn compact(&mut self, dropped: &[bool]) -> Vec<Option<usize>> {
+        self.flush();
         let n = self.dim();
         let is_dropped = |i: usize| dropped.get(i).copied().unwrap_or(false);
         let mut map = vec![None; n];
@@ -884,6 +926,35 @@ mod tests {
         block += &q;
         assert!((cov.to_dense() - &expected).amax() < 1e-12);
         assert!(matches!(cov.slots[3], Slot::Alone(_)));
+    }
+
+    #[test]
+    fn deferred_predictions_read_and_update_like_immediate_ones() {
+        let c = random_spd(8, 23);
+        let mut cov = from_dense(&c);
+        let j1 = DMatrix::from_row_slice(3, 3, &[1.0, 0.0, -0.4, 0.0, 1.0, 0.7, 0.0, 0.0, 1.0]);
+        let j2 = DMatrix::from_row_slice(3, 3, &[1.0, 0.1, 0.2, -0.1, 1.0, -0.3, 0.0, 0.0, 1.0]);
+        let q = DMatrix::from_diagonal(&DVector::from_vec(vec![0.01, 0.02, 0.003]));
+        let mut expected = c.clone();
+        for j in [&j1, &j2] {
+            cov.predict(j, &q);
+            let f = pose_transition(8, j);
+            expected = &f * &expected * f.transpose();
+            let mut block = expected.view_mut((0, 0), (3, 3));
+            block += &q;
+        }
+        // Read while the cross-covariance is pending, then updated (which brings it up to date).
+        assert!(cov.pending.is_some());
+        assert!((cov.to_dense() - &expected).amax() < 1e-12);
+        let indices = [0, 1, 2, 5, 6];
+        let h = DMatrix::from_fn(2, 5, |i, j| (i + 2 * j) as f64 * 0.1 - 0.3);
+        let r = DMatrix::from_row_slice(2, 2, &[0.04, 0.01, 0.01, 0.09]);
+        let eta = DVector::from_vec(vec![0.3, -0.2]);
+        let dx = cov.update(&indices, &h, &r, &eta).unwrap();
+        let (expected_dx, expected_c) = textbook(&expected, &indices, &h, &r, &eta);
+        assert!(cov.pending.is_none());
+        assert!((dx - expected_dx).amax() < 1e-12);
+        assert!((cov.to_dense() - expected_c).amax() < 1e-12);
     }
 
     #[test]

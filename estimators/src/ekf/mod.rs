@@ -453,6 +453,7 @@ impl<P: RobotPose> Estimator<P> for Ekf<P> {
     fn update(&mut self, observations: &[Observation]) -> Result<UpdateReport> {
         self.step += 1;
         self.skips = Skips::default();
+        self.cov.flush();
         self.frames.prepare(&self.pose, observations);
         let decisions = self.associate(observations)?;
         let mut report = self.apply_decisions(observations, decisions)?;

@@ -52,11 +52,7 @@ impl LineMapTypes for PpcaLines {
     }
 
     fn scan_point(&self, observation: &Observation) -> Option<Vector2<f64>> {
-        observation
-            .measurement
-            .as_any()
-            .downcast_ref::<LinePoint>()
-            .map(|p| p.point)
+        LinePoint::point_of(observation)
     }
 }
 

@@ -6,7 +6,9 @@
 //! update of a line would use.
 
 use slam_core::nalgebra::{DMatrix, DVector, Matrix2, RowVector2, Vector2};
-use slam_core::{CoordBlock, Coordinates, Error, Innovation, MeasurementModel, Result};
+use slam_core::{
+    CoordBlock, Coordinates, Error, Innovation, MeasurementModel, Observation, Result,
+};
 use slam_features::PpcaLine;
 
 use super::check_sigmas;
@@ -36,6 +38,27 @@ impl LinePoint {
         check_sigmas(&[sigma], "line point")?;
         slam_core::ensure_finite(point.as_slice(), "line point")?;
         Ok(LinePoint { point, sigma })
+    }
+
+    /// The return an observation carries when its measurement is a [`LinePoint`] (what
+    /// IPSLAM's `LineMapTypes::scan_point` asks of a scan-point front-end).
+    ///
+    /// ```
+    /// use slam_core::{Observation, Pose3, nalgebra::Vector2};
+    /// use slam_sensors::models::LinePoint;
+    /// let observation = Observation {
+    ///     robot_from_sensor: Pose3::identity(),
+    ///     measurement: Box::new(LinePoint::new(Vector2::new(2.0, 0.5), 0.02).unwrap()),
+    ///     landmark_id: None,
+    /// };
+    /// assert_eq!(LinePoint::point_of(&observation), Some(Vector2::new(2.0, 0.5)));
+    /// ```
+    pub fn point_of(observation: &Observation) -> Option<Vector2<f64>> {
+        observation
+            .measurement
+            .as_any()
+            .downcast_ref::<LinePoint>()
+            .map(|p| p.point)
     }
 }
 

@@ -66,6 +66,73 @@ fn two_nearest(points: &[Vector2<f64>], segments: &[Segment]) -> TwoNearest {
     result
 }
 
+/// Each segment's saving (the increase of the total distance were it removed alone) and the
+/// segments that would take over its points.
+fn savings_and_heirs(nearest: &TwoNearest, n: usize) -> (Vec<f64>, Vec<Vec<u32>>) {
+    let mut saving = vec![0.0; n];
+    let mut heirs: Vec<Vec<u32>> = vec![Vec::new(); n];
+    for (k, &j) in nearest.owner.iter().enumerate() {
+        if let Some(s) = saving.get_mut(j as usize) {
+            *s += nearest.runner_up_distance[k] - nearest.distance[k];
+            let j2 = nearest.runner_up[k];
+            let h = &mut heirs[j as usize];
+            if j2 != u32::MAX && h.last() != Some(&j2) {
+                h.push(j2);
+            }
+        }
+    }
+    (saving, heirs)
+}
+
+/// One round of removals, cheapest first: at most `most` segments, while `allowed(saving,
+/// total, remaining)` holds for the next one (`total` the distance so far, updated by each
+/// removal's saving). A segment that takes over the points of a removed one is not removed
+/// in the same round. Returns which segments stay and how many went.
+fn removal_round(
+    nearest: &TwoNearest,
+    n: usize,
+    mut total: f64,
+    most: usize,
+    allowed: impl Fn(f64, f64, usize) -> bool,
+) -> (Vec<bool>, usize) {
+    let (saving, heirs) = savings_and_heirs(nearest, n);
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by(|&a, &b| saving[a].total_cmp(&saving[b]).then(a.cmp(&b)));
+    let mut keep = vec![true; n];
+    let mut protected = vec![false; n];
+    let mut remaining = n;
+    let mut removed = 0;
+    for &j in &order {
+        // Savings are finite or infinite (no second segment), never NaN.
+        if removed >= most || remaining < 2 || !allowed(saving[j], total, remaining) {
+            break;
+        }
+        if protected[j] {
+            continue;
+        }
+        keep[j] = false;
+        for &h in &heirs[j] {
+            protected[h as usize] = true;
+        }
+        total += saving[j];
+        remaining -= 1;
+        removed += 1;
+    }
+    (keep, removed)
+}
+
+fn kept(segments: &[Segment], keep: &[bool]) -> Vec<Segment> {
+    segments
+        .iter()
+        .zip(keep)
+        .filter_map(|(s, &k)| k.then_some(*s))
+        .collect()
+}
+
+fn round_size(n: usize) -> usize {
+    ((ROUND_FRACTION * n as f64).ceil() as usize).max(1)
+}
+
 /// Removes the segments that save less than the distance budget of one segment (module
 /// documentation). Returns the remaining segments and the number removed.
 pub(crate) fn prune(
@@ -87,59 +154,59 @@ pub(crate) fn prune(
                 .collect()
         });
         let n = segments.len();
-        let mut saving = vec![0.0; n];
-        let mut total = 0.0;
-        for (k, &j) in nearest.owner.iter().enumerate() {
-            if let Some(s) = saving.get_mut(j as usize) {
-                total += nearest.distance[k] - baseline[k];
-                *s += nearest.runner_up_distance[k] - nearest.distance[k];
-            }
-        }
-        let mut order: Vec<usize> = (0..n).collect();
-        order.sort_by(|&a, &b| saving[a].total_cmp(&saving[b]).then(a.cmp(&b)));
-        // Which segments take over the points of each one.
-        let mut heirs: Vec<Vec<u32>> = vec![Vec::new(); n];
-        for (&j, &j2) in nearest.owner.iter().zip(&nearest.runner_up) {
-            if let Some(h) = heirs.get_mut(j as usize)
-                && j2 != u32::MAX
-                && h.last() != Some(&j2)
-            {
-                h.push(j2);
-            }
-        }
-        let most = ((ROUND_FRACTION * n as f64).ceil() as usize).max(1);
-        let mut keep = vec![true; n];
-        let mut protected = vec![false; n];
-        let mut remaining = n;
-        let mut removed = 0;
-        for &j in &order {
-            if removed >= most || remaining < 2 {
-                break;
-            }
-            // Savings are finite or infinite (no second segment), never NaN.
-            if saving[j] > total / (remaining - 1) as f64 {
-                break;
-            }
-            if protected[j] {
-                continue;
-            }
-            keep[j] = false;
-            for &h in &heirs[j] {
-                protected[h as usize] = true;
-            }
-            total += saving[j];
-            remaining -= 1;
-            removed += 1;
-        }
+        let total: f64 = nearest
+            .owner
+            .iter()
+            .zip(nearest.distance.iter().zip(baseline.iter()))
+            .filter(|(j, _)| (**j as usize) < n)
+            .map(|(_, (d, b))| d - b)
+            .sum();
+        let (keep, removed) = removal_round(&nearest, n, total, round_size(n), |c, d, m| {
+            c <= d / (m - 1) as f64
+        });
         if removed == 0 {
             break;
         }
         removed_total += removed;
-        segments = segments
-            .into_iter()
-            .zip(keep)
-            .filter_map(|(s, k)| k.then_some(s))
-            .collect();
+        segments = kept(&segments, &keep);
+    }
+    (segments, removed_total)
+}
+
+/// The fewest segments, removed greedily cheapest first, that keep the mean distance of the
+/// points to their nearest segment at most `max_mean` (m): polygonal approximation at a
+/// given accuracy (the "min-#" problem). A round whose removals together exceed the bound
+/// (each saving was measured with the others present) is taken back and tried with half as
+/// many, down to one removal, whose saving is exact. Nothing is removed when the mean is
+/// already above the bound. Returns the remaining segments and the number removed.
+pub(crate) fn prune_to_mean(
+    points: &[Vector2<f64>],
+    mut segments: Vec<Segment>,
+    max_mean: f64,
+) -> (Vec<Segment>, usize) {
+    let limit = max_mean * points.len() as f64;
+    let mut removed_total = 0;
+    let mut cap = usize::MAX;
+    while segments.len() > 1 {
+        let nearest = two_nearest(points, &segments);
+        let total: f64 = nearest.distance.iter().sum();
+        let n = segments.len();
+        let most = round_size(n).min(cap);
+        let (keep, removed) = removal_round(&nearest, n, total, most, |c, d, _| d + c <= limit);
+        if removed == 0 {
+            break;
+        }
+        let candidate = kept(&segments, &keep);
+        let actual: f64 = super::nearest_distances(points, &candidate).iter().sum();
+        if actual > limit {
+            if most == 1 {
+                break;
+            }
+            cap = (most / 2).max(1);
+            continue;
+        }
+        removed_total += removed;
+        segments = candidate;
     }
     (segments, removed_total)
 }
@@ -198,5 +265,70 @@ mod tests {
         points.extend([Vector2::new(1.0, 1.0), Vector2::new(1.3, 1.0)]);
         let (kept, removed) = prune(&points, segments.clone(), f64::INFINITY);
         assert_eq!((kept.len(), removed), (2, 1));
+    }
+
+    #[test]
+    fn prune_to_mean_removes_the_cheapest_segments_while_the_mean_stays_within_the_bound() {
+        // Two walls (401 points each) and two objects 1 m from both, of 11 and 21 points:
+        // removing them adds 11 m and 21 m to a total distance of 0 over 834 points, so a
+        // mean of 11 / 834 = 1.32 cm pays for the first and 32 / 834 = 3.84 cm for both.
+        let mut points = along((0.0, 0.0), (4.0, 0.0), 400);
+        points.extend(along((0.0, 2.0), (4.0, 2.0), 400));
+        points.extend(along((1.0, 1.0), (1.3, 1.0), 10));
+        points.extend(along((2.5, 1.0), (2.8, 1.0), 20));
+        let segments = vec![
+            seg((0.0, 0.0), (4.0, 0.0)),
+            seg((0.0, 2.0), (4.0, 2.0)),
+            seg((1.0, 1.0), (1.3, 1.0)),
+            seg((2.5, 1.0), (2.8, 1.0)),
+        ];
+        let mean = |kept: &[Segment]| {
+            crate::em_polygon::nearest_distances(&points, kept)
+                .iter()
+                .sum::<f64>()
+                / points.len() as f64
+        };
+        let [a, b, small, large] = [0, 1, 2, 3].map(|k| segments[k]);
+        for (bound, expected) in [
+            (0.012, vec![a, b, small, large]),
+            (0.014, vec![a, b, large]),
+            (0.038, vec![a, b, large]),
+            (0.039, vec![a, b]),
+            (0.5, vec![a, b]),
+        ] {
+            let (kept, removed) = prune_to_mean(&points, segments.clone(), bound);
+            assert_eq!(removed, 4 - expected.len(), "bound {bound}");
+            assert_eq!(kept, expected, "bound {bound}");
+            assert!(mean(&kept) <= bound, "bound {bound}: mean {}", mean(&kept));
+        }
+    }
+
+    #[test]
+    fn prune_to_mean_keeps_every_bound_on_scattered_objects() {
+        // Walls and 30 objects of 3-32 points at 0.3-1.2 m from the walls and each other:
+        // many removals per round, whose savings interact. Every bound is kept, and a
+        // larger bound never keeps more segments.
+        let mut points = along((0.0, 0.0), (10.0, 0.0), 1000);
+        points.extend(along((0.0, 3.0), (10.0, 3.0), 1000));
+        let mut segments = vec![seg((0.0, 0.0), (10.0, 0.0)), seg((0.0, 3.0), (10.0, 3.0))];
+        for k in 0..30 {
+            let x = 0.3 + 0.32 * k as f64;
+            let y = 0.3 + 0.03 * ((k * 7) % 31) as f64;
+            points.extend(along((x, y), (x + 0.2, y), 2 + k));
+            segments.push(seg((x, y), (x + 0.2, y)));
+        }
+        let mut previous = segments.len();
+        for bound in [0.001, 0.005, 0.01, 0.02, 0.05, 0.1, 0.3] {
+            let (kept, removed) = prune_to_mean(&points, segments.clone(), bound);
+            let mean = crate::em_polygon::nearest_distances(&points, &kept)
+                .iter()
+                .sum::<f64>()
+                / points.len() as f64;
+            assert!(mean <= bound, "bound {bound}: mean {mean}");
+            assert_eq!(kept.len() + removed, segments.len());
+            assert!(kept.len() <= previous, "bound {bound}");
+            previous = kept.len();
+        }
+        assert!(previous < segments.len());
     }
 }

@@ -170,6 +170,62 @@ fn a_room_with_a_doorway_becomes_five_walls_in_one_polyline() {
 }
 
 #[test]
+fn a_mean_distance_bound_gives_fewer_segments_and_is_kept_after_the_joins() {
+    // The room with clutter and, outside three walls, a short shelf of 120 points 60 cm off
+    // it. Without the selection the fit keeps the shelves; a bound on the mean distance
+    // removes what it can afford, and no wall (the bound applies on its own, without the selection).
+    let mut noise = Noise(5);
+    let mut points = room(&mut noise);
+    for (a, b) in [
+        (v(1.0, -0.6), v(1.6, -0.6)),
+        (v(6.6, 1.0), v(6.6, 1.6)),
+        (v(1.0, 4.6), v(1.6, 4.6)),
+    ] {
+        points.extend(strip(a, b, 0.005, 0.005, &mut noise));
+    }
+    let unselected = EmPolygonParams {
+        select_segments: false,
+        ..robust()
+    };
+    let default = fit_polygons(&points, &unselected).unwrap();
+    // A shelf's points are 0.6 m from anything else: removing one adds about 3 cm to the
+    // mean of the 2,300 points.
+    let bound = default.mean_distance.unwrap() + 0.05;
+    let compact = fit_polygons(
+        &points,
+        &EmPolygonParams {
+            max_mean_distance: Some(bound),
+            ..unselected.clone()
+        },
+    )
+    .unwrap();
+    let mean = compact.mean_distance.unwrap();
+    assert!(mean <= bound, "mean {mean}");
+    assert!(
+        compact.segments.len() < default.segments.len(),
+        "{} against {}",
+        compact.segments.len(),
+        default.segments.len()
+    );
+    assert!(compact.segments.len() >= 5, "{:?}", compact.segments);
+    // A bound below the fit's mean removes nothing.
+    let tight = fit_polygons(
+        &points,
+        &EmPolygonParams {
+            max_mean_distance: Some(1e-4),
+            ..unselected
+        },
+    )
+    .unwrap();
+    assert_eq!(tight.segments, default.segments);
+    let invalid = EmPolygonParams {
+        max_mean_distance: Some(0.0),
+        ..Default::default()
+    };
+    assert!(fit_polygons(&points, &invalid).is_err());
+}
+
+#[test]
 fn results_do_not_depend_on_the_number_of_threads() {
     let points = room(&mut Noise(11));
     let run = |threads| {

@@ -484,18 +484,16 @@ impl StateCovariance {
         // C H^T over the nonzeros of H only: each measurement row touches the pose and one
         // feature's rows, so H is block-sparse and this is O(n nnz(H)) instead of O(n m |T|).
         let c_cols = self.columns(&dense_cols);
+        let h_t = Mat::<f64>::from_fn(columns.len(), m, |c, q| h[(rows[q], columns[c].0)]);
         let mut pht = Mat::<f64>::zeros(n, m);
-        for (c, &(t, _)) in columns.iter().enumerate() {
-            let column = c_cols.col_as_slice(c);
-            for (q, &row) in rows.iter().enumerate() {
-                let weight = h[(row, t)];
-                if weight != 0.0 {
-                    for (target, value) in pht.col_as_slice_mut(q).iter_mut().zip(column) {
-                        *target += weight * value;
-                    }
-                }
-            }
-        }
+        faer::linalg::matmul::matmul(
+            pht.as_mut(),
+            Accum::Replace,
+            c_cols.as_ref(),
+            h_t.as_ref(),
+            1.0,
+            Par::Seq,
+        );
         let h_dense = DMatrix::from_fn(m, columns.len(), |q, c| h[(rows[q], columns[c].0)]);
         let pht_t = DMatrix::from_fn(columns.len(), m, |c, q| pht[(columns[c].1, q)]);
         let r_dense = DMatrix::from_fn(m, m, |a, b| r[(rows[a], rows[b])]);

@@ -17,6 +17,8 @@
 //! block. On Victoria Park a third of the state and of every update's rank are radii, so the
 //! dense downdate, `O(n^2 m)`, shrinks to about `(2/3)^3` of the work.
 
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::llt;
 use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
 use faer::{Accum, Mat, Par};
@@ -481,8 +483,8 @@ impl StateCovariance {
             })
             .collect();
         let dense_cols: Vec<usize> = columns.iter().map(|&(_, k)| k).collect();
-        // C H^T over the nonzeros of H only: each measurement row touches the pose and one
-        // feature's rows, so H is block-sparse and this is O(n nnz(H)) instead of O(n m |T|).
+        // C H^T on the touched columns only (the pose's and the observed features' rows):
+        // one product of n x |T| by |T| x m.
         let c_cols = self.columns(&dense_cols);
         let h_t = Mat::<f64>::from_fn(columns.len(), m, |c, q| h[(rows[q], columns[c].0)]);
         let mut pht = Mat::<f64>::zeros(n, m);
@@ -494,17 +496,21 @@ impl StateCovariance {
             1.0,
             Par::Seq,
         );
-        let h_dense = DMatrix::from_fn(m, columns.len(), |q, c| h[(rows[q], columns[c].0)]);
-        let pht_t = DMatrix::from_fn(columns.len(), m, |c, q| pht[(columns[c].1, q)]);
-        let r_dense = DMatrix::from_fn(m, m, |a, b| r[(rows[a], rows[b])]);
-        let s = h_dense * pht_t + r_dense;
-        let s = 0.5 * (&s + s.transpose());
-        let cholesky = s
-            .cholesky()
+        // S = H C H^T + R, symmetrized, and its lower Cholesky factor L.
+        let pht_touched = Mat::<f64>::from_fn(columns.len(), m, |c, q| pht[(columns[c].1, q)]);
+        let mut s = Mat::<f64>::from_fn(m, m, |a, b| r[(rows[a], rows[b])]);
+        faer::linalg::matmul::matmul(
+            s.as_mut(),
+            Accum::Add,
+            h_t.transpose(),
+            pht_touched.as_ref(),
+            1.0,
+            Par::Seq,
+        );
+        let l = lower_cholesky(s)
             .ok_or_else(|| Error::Singular("innovation covariance S of an EKF update".into()))?;
         // W = C H^T L^{-T}: W^T = L^{-1} (C H^T)^T by forward substitution, in place on the
         // transposed view of C H^T (m^2 n / 2 operations, in faer).
-        let l = to_faer(&cholesky.l());
         if (0..m).any(|i| l[(i, i)] == 0.0) {
             return Err(Error::Singular("Cholesky factor of S".into()));
         }
@@ -704,9 +710,35 @@ fn alone_update(
     Ok((-w.dot(&whitened), variance - w.dot(&w)))
 }
 
-/// A faer copy of a small nalgebra matrix.
-fn to_faer(m: &DMatrix<f64>) -> Mat<f64> {
-    Mat::from_fn(m.nrows(), m.ncols(), |i, j| m[(i, j)])
+/// The lower Cholesky factor of the symmetric part of `s` (`None` when that is not positive
+/// definite), on one thread.
+fn lower_cholesky(mut s: Mat<f64>) -> Option<Mat<f64>> {
+    let m = s.nrows();
+    for j in 0..m {
+        for i in j + 1..m {
+            s[(i, j)] = 0.5 * (s[(i, j)] + s[(j, i)]);
+        }
+    }
+    let par = Par::Seq;
+    let mut memory = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
+        m,
+        par,
+        Default::default(),
+    ));
+    llt::factor::cholesky_in_place(
+        s.as_mut(),
+        Default::default(),
+        par,
+        MemStack::new(&mut memory),
+        Default::default(),
+    )
+    .ok()?;
+    for j in 1..m {
+        for i in 0..j {
+            s[(i, j)] = 0.0;
+        }
+    }
+    Some(s)
 }
 
 #[cfg(test)]

@@ -176,8 +176,27 @@ fn a_diverged_filter_exits_with_its_code_and_keeps_its_outputs() {
     }
     let world = dir.path().join("far.toml");
     std::fs::write(&world, far).unwrap();
+    // Without the known-id validation gate, which would reject the failing updates.
+    let config = dir.path().join("ungated.toml");
+    std::fs::write(
+        &config,
+        "[estimator]\ntype = \"ekf\"\nknown_id_gate_probability = 1.0\n",
+    )
+    .unwrap();
     let out = dir.path().join("out");
-    let status = start(&world, &out, 1).wait().unwrap();
+    let status = Command::new(SLAM)
+        .arg("run")
+        .arg(&config)
+        .args(["--quiet", "--seed", "1", "--out"])
+        .arg(&out)
+        .arg("--data")
+        .arg(format!("world:{}", world.display()))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
+        .wait()
+        .unwrap();
     assert_eq!(status.code(), Some(i32::from(slam_cli::EXIT_DIVERGED)));
     let metrics: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();

@@ -2,7 +2,7 @@
 //! the full state, and the joint distance of a JCBB hypothesis from the full covariance. The
 //! rules are the shared ones ([`crate::association`]).
 
-use slam_core::{Observation, Result, RobotPose};
+use slam_core::{FeatureId, Observation, Result, RobotPose};
 
 use super::jacobians::stack;
 use super::{Decision, Ekf, Pairing, quadratic_form};
@@ -27,7 +27,7 @@ impl<P: RobotPose> Ekf<P> {
         );
         let mut out = Vec::new();
         for (id, _, _) in nearby {
-            let Ok(pairing) = self.linearize(observation, id) else {
+            let Ok(mut pairing) = self.linearize(observation, id) else {
                 skips.count("association: linearization failed");
                 continue;
             };
@@ -38,6 +38,9 @@ impl<P: RobotPose> Ekf<P> {
                 continue;
             };
             let distance = quadratic_form(&s_inv, &pairing.eta);
+            if !tentative {
+                pairing.nis = Some(distance);
+            }
             if distance.is_finite() {
                 out.push(Candidate {
                     feature: id.0,
@@ -65,7 +68,7 @@ impl<P: RobotPose> Ekf<P> {
                 Some(id) => {
                     decisions[index] = Some(match self.ids.get(&id) {
                         Some(&feature) => match self.linearize(observation, feature) {
-                            Ok(pairing) => Decision::Pair(pairing),
+                            Ok(pairing) => self.validated(pairing, feature)?,
                             Err(_) => {
                                 self.skips.count("association: linearization failed");
                                 Decision::Reject
@@ -105,6 +108,31 @@ impl<P: RobotPose> Ekf<P> {
             .into_iter()
             .map(|d| d.unwrap_or(Decision::Reject))
             .collect())
+    }
+
+    /// A known landmark's pairing if its innovation passes the validation gate
+    /// (`known_id_gate_probability`), else a rejection.
+    fn validated(&mut self, mut pairing: Pairing, feature: FeatureId) -> Result<Decision> {
+        let probability = self.params.known_id_gate_probability;
+        if probability >= 1.0 {
+            return Ok(Decision::Pair(pairing));
+        }
+        let gate = self.gates.gate(probability, pairing.eta.len())?;
+        let tentative = !self.is_confirmed(feature);
+        let s = self.innovation_covariance(&pairing, tentative);
+        let distance = s
+            .try_inverse()
+            .map(|s_inv| quadratic_form(&s_inv, &pairing.eta));
+        if !tentative {
+            pairing.nis = distance;
+        }
+        if distance.is_some_and(|d| d <= gate) {
+            Ok(Decision::Pair(pairing))
+        } else {
+            self.skips
+                .count("association: a known landmark outside its validation gate");
+            Ok(Decision::Reject)
+        }
     }
 
     /// Whether the feature `observation` would start overlaps an existing one within the

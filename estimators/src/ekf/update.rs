@@ -90,12 +90,15 @@ impl<P: RobotPose> Ekf<P> {
                     let observation = &observations[index];
                     report.associated += 1;
                     if self.is_confirmed(id) {
-                        let s = self.innovation_covariance(&pairing, false);
-                        match s.try_inverse() {
-                            Some(s_inv) => {
-                                let nis = quadratic_form(&s_inv, &pairing.eta);
-                                report.nis.push((nis, pairing.eta.len()));
-                            }
+                        // Association's figure when it had one: the covariance has not
+                        // changed since.
+                        let nis = pairing.nis.or_else(|| {
+                            self.innovation_covariance(&pairing, false)
+                                .try_inverse()
+                                .map(|s_inv| quadratic_form(&s_inv, &pairing.eta))
+                        });
+                        match nis {
+                            Some(nis) => report.nis.push((nis, pairing.eta.len())),
                             None => self.skips.count("NIS: singular innovation covariance"),
                         }
                         if self.seen_from_the_last_update_viewpoint(id) {
@@ -382,7 +385,7 @@ impl<P: RobotPose> Ekf<P> {
 #[cfg(test)]
 mod tests {
     use slam_core::nalgebra::{DMatrix, Matrix2, Vector2};
-    use slam_core::{Estimator, Observation, Pose2, Pose3};
+    use slam_core::{Estimator, Observation, Pose2, Pose3, Shape};
     use slam_sensors::models::WallObservation;
 
     use super::super::{Ekf, EkfParams};
@@ -447,5 +450,64 @@ mod tests {
         let (first, every, _, skipped) = lateral_variances(0.0, 0.0);
         assert!(every < first, "{every} {first}");
         assert_eq!(skipped, 0);
+    }
+
+    /// Landmark 7 seen at 5 m, bearing `bearing`, from a robot at the origin.
+    fn landmark_seen(bearing: f64) -> Vec<Observation> {
+        let measurement =
+            slam_sensors::models::RangeBearing::new(5.0, bearing, 0.05, 0.01).unwrap();
+        vec![Observation {
+            robot_from_sensor: Pose3::identity(),
+            measurement: Box::new(measurement),
+            landmark_id: Some(7),
+        }]
+    }
+
+    /// Where the map puts landmark 7 after four sightings at bearing 0.3 and one at `last`,
+    /// and how many sightings the known-id validation gate rejected.
+    fn after_outlier(gate: f64, last: f64) -> (Vector2<f64>, usize) {
+        let params = EkfParams {
+            known_id_gate_probability: gate,
+            ..EkfParams::default()
+        };
+        let mut ekf = Ekf::new(Pose2::identity(), DMatrix::identity(3, 3) * 1e-4, params).unwrap();
+        for _ in 0..4 {
+            ekf.update(&landmark_seen(0.3)).unwrap();
+        }
+        let report = ekf.update(&landmark_seen(last)).unwrap();
+        let rejected = report
+            .skipped
+            .iter()
+            .filter(|(what, _)| what.contains("validation gate"))
+            .map(|(_, n)| n)
+            .sum();
+        let positions: Vec<Vector2<f64>> = ekf
+            .map()
+            .iter()
+            .filter_map(|(_, f)| match f.shape() {
+                Some(Shape::Point { position }) => Some(position.xy()),
+                Some(Shape::PlanarPoint { position }) => Some(position),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(positions.len(), 1);
+        (positions[0], rejected)
+    }
+
+    /// A known landmark seen 0.5 rad (50 bearing deviations) from where the filter puts it
+    /// does not update with the gate and moves the landmark without it; a sighting within
+    /// its noise passes the gate.
+    #[test]
+    fn a_known_landmark_far_outside_its_innovation_gate_does_not_update() {
+        let (before, _) = after_outlier(0.999, 0.3);
+        let (gated, rejected) = after_outlier(0.999, 0.8);
+        assert_eq!(rejected, 1);
+        assert_eq!(gated, before);
+        let (ungated, rejected) = after_outlier(1.0, 0.8);
+        assert_eq!(rejected, 0);
+        assert!((ungated - before).norm() > 0.1, "{ungated} {before}");
+        let (inlier, rejected) = after_outlier(0.999, 0.305);
+        assert_eq!(rejected, 0);
+        assert_ne!(inlier, before);
     }
 }

@@ -63,6 +63,7 @@ impl<P: RobotPose> Ekf<P> {
                 h,
                 eta: lin.eta,
                 cov_eta,
+                nis: None,
             });
         }
         self.skips.merge(&skips);

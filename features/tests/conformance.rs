@@ -105,7 +105,7 @@ proptest! {
     #[test]
     fn poles_conform_or_refuse(x in coordinate(), y in coordinate(), r in prop_oneof![-1.0..1e-3, 1e-3..3.0]) {
         match Pole::new(r, Vector2::new(x, y)) {
-            Ok(pole) => assert_conforms(&pole)?,
+            Ok(pole) => assert_conforms_near(&pole, r - Pole::MIN_RADIUS)?,
             Err(e) => prop_assert!(r < Pole::MIN_RADIUS, "refused r = {r}: {e}"),
         }
     }
@@ -154,4 +154,17 @@ proptest! {
         prop_assert_eq!(check_coincidence(&point, &other, &params), Ok(true));
         prop_assert_eq!(check_coincidence(&pole, &point, &params), Ok(false));
     }
+}
+
+/// A pole just above the minimum radius, where the suite's probes cross it (the case
+/// proptest drew in CI on 28 Nov 2026): refused as degenerate, never a NaN.
+#[test]
+fn a_pole_at_the_minimum_radius_is_refused_as_degenerate_by_the_probes() {
+    let pole = Pole::new(Pole::MIN_RADIUS + 1e-9, Vector2::new(-50.0, 40.0)).unwrap();
+    assert_conforms_near(&pole, 1e-9).unwrap();
+    let refused = check_feature(&pole, &ConformanceParams::default());
+    assert!(
+        refused.is_err_and(|failure| failure.detail.contains("degenerate")),
+        "the probes should cross the minimum radius"
+    );
 }

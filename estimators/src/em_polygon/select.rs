@@ -10,7 +10,11 @@
 //! save at least the distance budget of one segment. Segments are removed cheapest first,
 //! `D` and `n` updated after each removal, in rounds of at most a tenth of the segments
 //! (savings are recomputed between rounds; within a round, a segment that takes over the
-//! points of a removed one is not removed), until no segment qualifies.
+//! points of a removed one is not removed), until no segment qualifies ([`prune`]).
+//!
+//! With a bound on the mean distance (`EmPolygonParams::max_mean_distance`), the same rounds
+//! remove the cheapest segments while the total distance of all points stays within the
+//! bound times their number ([`prune_to_mean`]).
 
 use rayon::prelude::*;
 use slam_core::nalgebra::Vector2;

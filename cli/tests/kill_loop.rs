@@ -25,8 +25,18 @@ fn world(dir: &Path, steps: usize) -> PathBuf {
 }
 
 fn start(world: &Path, out: &Path, seed: u64) -> Child {
-    Command::new(SLAM)
-        .args(["run", "--quiet", "--seed", &seed.to_string(), "--out"])
+    start_with(None, world, out, seed)
+}
+
+/// `slam run [CONFIG] --data world:WORLD --out OUT --seed SEED --quiet`, output discarded.
+fn start_with(config: Option<&Path>, world: &Path, out: &Path, seed: u64) -> Child {
+    let mut command = Command::new(SLAM);
+    command.arg("run");
+    if let Some(config) = config {
+        command.arg(config);
+    }
+    command
+        .args(["--quiet", "--seed", &seed.to_string(), "--out"])
         .arg(out)
         .arg("--data")
         .arg(format!("world:{}", world.display()))
@@ -184,19 +194,7 @@ fn a_diverged_filter_exits_with_its_code_and_keeps_its_outputs() {
     )
     .unwrap();
     let out = dir.path().join("out");
-    let status = Command::new(SLAM)
-        .arg("run")
-        .arg(&config)
-        .args(["--quiet", "--seed", "1", "--out"])
-        .arg(&out)
-        .arg("--data")
-        .arg(format!("world:{}", world.display()))
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap()
-        .wait()
-        .unwrap();
+    let status = start_with(Some(&config), &world, &out, 1).wait().unwrap();
     assert_eq!(status.code(), Some(i32::from(slam_cli::EXIT_DIVERGED)));
     let metrics: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();

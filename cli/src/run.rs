@@ -365,6 +365,24 @@ fn map_quality_clause(metrics: &RunMetrics) -> String {
     )
 }
 
+/// The loop consistency clause of the summary (runs with scans that come back to a place),
+/// else empty.
+fn revisit_clause(metrics: &RunMetrics) -> String {
+    let Some(figures) = &metrics.revisit_consistency else {
+        return String::new();
+    };
+    let Some(estimate) = &figures.estimate else {
+        return String::new();
+    };
+    let reference = figures.reference.map_or(String::new(), |r| {
+        format!(", {:.1} cm by the reference poses", 100.0 * r.median_m)
+    });
+    format!(
+        "; passes over the same place {:.1} cm apart (median{reference})",
+        100.0 * estimate.median_m
+    )
+}
+
 fn summary_line(output: &RunOutput, metrics: &RunMetrics, dir: &Path) -> String {
     let number = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.3}"));
     let nees = match &metrics.nees {
@@ -384,6 +402,7 @@ fn summary_line(output: &RunOutput, metrics: &RunMetrics, dir: &Path) -> String 
         number(metrics.map_error_m),
     );
     line.push_str(&map_quality_clause(metrics));
+    line.push_str(&revisit_clause(metrics));
     let skipped: usize = output.input.skipped_readings.values().sum();
     if skipped > 0 {
         let reasons: Vec<String> = output
@@ -950,6 +969,15 @@ mod tests {
         assert!(after <= before, "median {before} -> {after}");
         let (before, after) = (number("ate_rmse_before_m"), number("ate_rmse_after_m"));
         assert!(after <= 1.2 * before, "ATE {before} -> {after}");
+        // The passes over the same places, by the filter's, the relocalized and the true poses.
+        let run = read_json(&dir.path().join("out/metrics.json"));
+        let passes = &run["revisit_consistency"];
+        let median = |figure: &serde_json::Value| figure["median_m"].as_f64().unwrap();
+        // The true poses leave only the range noise (1 cm); the filter's stay within 2 cm.
+        assert!(median(&passes["reference"]) < 0.01, "{passes}");
+        assert!(median(&passes["estimate"]) < 0.02, "{passes}");
+        assert_eq!(metrics["revisits_before"], passes["estimate"]);
+        assert!(median(&metrics["revisits_after"]) < 0.02, "{metrics}");
     }
 
     /// The Intel lab with its SLAM-corrected poses (about 160,000 points): run with

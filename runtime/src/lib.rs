@@ -58,7 +58,7 @@ pub use config::{Config, OutputConfig};
 pub use error::{Result, RuntimeError};
 pub use estimators::{EstimatorConfig, Start};
 pub use frontend::{Frontend, FrontendConfig, load_prior};
-pub use metrics::{LaserOdometryReportView, RunMetrics, RunResults, compute_run};
+pub use metrics::{LaserOdometryReportView, RevisitFigures, RunMetrics, RunResults, compute_run};
 pub use postprocess::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
 pub use record::{Recorder, UpdateTotals};
 pub use run::{InputReport, RunOutput, run, run_until};

@@ -12,9 +12,10 @@ use slam_sensors::laser_odometry::LaserOdometryReport;
 use crate::config::Config;
 use crate::error::Result;
 use crate::eval::{
-    ChiSquareSummary, CloseLandmarks, ErrorStats, MapError, MapQuality, TrajectoryErrors,
-    chi_square_summary, close_landmarks, confirmed_wall_segments, feature_counts,
-    map_error_against_landmarks, map_error_against_truth, map_quality, pose_nees, singular_steps,
+    ChiSquareSummary, CloseLandmarks, ErrorStats, MapError, MapQuality, REVISIT_GAP_M,
+    REVISIT_RADIUS_M, RevisitConsistency, TrajectoryErrors, chi_square_summary, close_landmarks,
+    confirmed_wall_segments, feature_counts, map_error_against_landmarks, map_error_against_truth,
+    map_quality, pose_nees, revisit_consistency, singular_steps,
 };
 use crate::frontend::FrontendCounts;
 use crate::health::Divergence;
@@ -87,6 +88,10 @@ pub struct RunMetrics {
     /// How well the wall map explains the scans and how much of it is doubled (runs with
     /// laser scans and walls; no truth needed).
     pub map_quality: Option<MapQuality>,
+    /// How well the scans of places visited more than once agree, placed by the path the map
+    /// belongs to and by the data's reference poses (runs with laser scans; no truth or map
+    /// needed; [`crate::eval::revisit_consistency`]).
+    pub revisit_consistency: Option<RevisitFigures>,
     /// Pairs of confirmed poles or points within a Mahalanobis distance of 3 of each other
     /// (landmarks mapped twice), by the estimator's joint covariance when it has one; `null`
     /// with fewer than two such features.
@@ -111,6 +116,33 @@ pub struct RunMetrics {
     pub unavailable: BTreeMap<&'static str, String>,
     /// The configuration of the run.
     pub config: Config,
+}
+
+/// The loop consistency of a run's scans, as `metrics.json` holds it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RevisitFigures {
+    /// Readings taken closer than this along the path are not compared, m.
+    pub gap_m: f64,
+    /// Neighbours lie within this distance, m.
+    pub radius_m: f64,
+    /// The scans placed by the path the map belongs to (`null`: no place seen twice).
+    pub estimate: Option<RevisitConsistency>,
+    /// The same scans placed by the data's reference or true poses, where it has them: the
+    /// same figure for the poses the ATE compares against.
+    pub reference: Option<RevisitConsistency>,
+}
+
+/// The path the map belongs to: a particle filter's map path, else the estimates.
+fn map_poses(output: &RunOutput) -> Vec<(f64, Pose2)> {
+    match &output.map_path {
+        Some(path) => path.clone(),
+        None => output
+            .record
+            .estimates
+            .iter()
+            .map(|r| (r.time, r.pose))
+            .collect(),
+    }
 }
 
 /// The laser odometry's counts, as `metrics.json` holds them.
@@ -178,6 +210,7 @@ impl RunMetrics {
             nees_singular_steps: consistency.singular_steps,
             nis: consistency.nis,
             map_quality: Self::map_quality(output),
+            revisit_consistency: Self::revisits(output),
             close_landmarks: close_landmarks(estimator, CLOSE_LANDMARK_DISTANCE),
             features: feature_counts(estimator),
             updates: record.updates,
@@ -205,15 +238,7 @@ impl RunMetrics {
         if walls.is_empty() || sample.is_empty() {
             return None;
         }
-        let path: Vec<(f64, Pose2)> = match &output.map_path {
-            Some(path) => path.clone(),
-            None => output
-                .record
-                .estimates
-                .iter()
-                .map(|r| (r.time, r.pose))
-                .collect(),
-        };
+        let path = map_poses(output);
         let pose_at = |time: f64| {
             let k = path.partition_point(|(t, _)| *t < time);
             path.get(k)
@@ -221,6 +246,28 @@ impl RunMetrics {
                 .map(|(_, pose)| *pose)
         };
         Some(map_quality(&walls, &sample.placed(pose_at)))
+    }
+
+    /// The loop consistency of the scans placed by the path the map belongs to and by the
+    /// data's reference poses; `None` without scans.
+    fn revisits(output: &RunOutput) -> Option<RevisitFigures> {
+        let sample = &output.record.scan_sample;
+        if sample.is_empty() {
+            return None;
+        }
+        let mut reference: Vec<(f64, Pose2)> = output
+            .record
+            .truth
+            .iter()
+            .map(|&(time, pose, _)| (time, pose))
+            .collect();
+        reference.sort_by(|a, b| a.0.total_cmp(&b.0));
+        Some(RevisitFigures {
+            gap_m: REVISIT_GAP_M,
+            radius_m: REVISIT_RADIUS_M,
+            estimate: revisit_consistency(sample, &map_poses(output)),
+            reference: revisit_consistency(sample, &reference),
+        })
     }
 
     /// Features the data named (known landmark ids) are compared with the known landmarks;

@@ -111,6 +111,11 @@ impl ScanSample {
         }
     }
 
+    /// The kept readings: each one's time and its place in the robot frame.
+    pub(crate) fn readings(&self) -> &[(f64, Vector2<f64>)] {
+        &self.points
+    }
+
     /// The kept readings in the world frame, each placed by `pose_at(time)`; readings without
     /// a pose are left out.
     pub fn placed(&self, pose_at: impl Fn(f64) -> Option<Pose2>) -> Vec<Vector2<f64>> {

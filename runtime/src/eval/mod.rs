@@ -1,7 +1,7 @@
 //! Evaluation anyone can call: trajectory errors (ATE, RPE, [`trajectory`]), consistency
 //! (NEES, NIS, [`ChiSquareSummary`]) and map error ([`map_error_against_truth`],
 //! [`map_error_against_landmarks`]) and map quality without truth ([`map_quality`],
-//! [`close_landmarks`]), ceiling lines found in images against the true ones
+//! [`close_landmarks`], [`revisit_consistency`]), ceiling lines found in images against the true ones
 //! ([`image_lines`]), as functions of plain data (the metrics of a whole run,
 //! `metrics.json`, are [`crate::RunMetrics`]).
 
@@ -10,6 +10,7 @@ mod consistency;
 pub mod image_lines;
 mod map;
 mod map_quality;
+mod revisits;
 pub mod trajectory;
 
 use std::collections::BTreeMap;
@@ -35,6 +36,10 @@ pub(crate) use map_quality::SegmentGrid;
 pub use map_quality::{
     DEFAULT_SAMPLE_SIZE, DOUBLED_ANGLE_DEG, DOUBLED_DISTANCE_M, MapQuality, ScanSample,
     confirmed_wall_segments, map_quality, wall_segments,
+};
+pub use revisits::{
+    REVISIT_GAP_M, REVISIT_LINE_RATIO, REVISIT_MIN_NEIGHBOURS, REVISIT_RADIUS_M,
+    RevisitConsistency, revisit_consistency,
 };
 pub use trajectory::{AlignMode, Alignment, ErrorStats, associate, ate, umeyama};
 

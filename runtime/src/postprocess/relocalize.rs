@@ -39,7 +39,9 @@ use slam_sensors::{Event, TimedEvent};
 
 use super::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
 use crate::error::{Result, RuntimeError};
-use crate::eval::{SegmentGrid, confirmed_wall_segments, map_quality};
+use crate::eval::{
+    RevisitConsistency, SegmentGrid, confirmed_wall_segments, map_quality, revisit_consistency,
+};
 use crate::session::Observer;
 
 /// The `[[postprocess]]` table of `type = "relocalize"`.
@@ -199,6 +201,10 @@ struct Metrics {
     /// the estimate and by the relocalized path, m.
     median_point_to_wall_before_m: Option<f64>,
     median_point_to_wall_after_m: Option<f64>,
+    /// How well the scans of places visited more than once agree, placed by the estimate and
+    /// by the relocalized path ([`crate::eval::revisit_consistency`]).
+    revisits_before: Option<RevisitConsistency>,
+    revisits_after: Option<RevisitConsistency>,
     /// Seconds of the relocalization alone.
     time_s: f64,
 }
@@ -327,6 +333,8 @@ impl Relocalize {
             ate_rmse_after_m: ate(after)?,
             median_point_to_wall_before_m: median(before),
             median_point_to_wall_after_m: median(after),
+            revisits_before: revisit_consistency(&run.record.scan_sample, before),
+            revisits_after: revisit_consistency(&run.record.scan_sample, after),
             time_s,
         })
     }
@@ -336,9 +344,10 @@ impl Relocalize {
 fn summary(m: &Metrics) -> String {
     let metres = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{v:.3} m"));
     let centimetres = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{:.1} cm", 100.0 * v));
+    let revisit = |v: Option<RevisitConsistency>| centimetres(v.map(|r| r.median_m));
     format!(
         "relocalize: {} of {} scans placed against {} walls ({:.1} s); ATE {} -> {}; median \
-         scan reading to wall {} -> {}",
+         scan reading to wall {} -> {}; passes apart (median) {} -> {}",
         m.relocalized,
         m.scans,
         m.walls,
@@ -347,6 +356,8 @@ fn summary(m: &Metrics) -> String {
         metres(m.ate_rmse_after_m),
         centimetres(m.median_point_to_wall_before_m),
         centimetres(m.median_point_to_wall_after_m),
+        revisit(m.revisits_before),
+        revisit(m.revisits_after),
     )
 }
 

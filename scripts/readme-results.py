@@ -19,7 +19,7 @@ Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
   victoria-park-fastslam  FastSLAM 2.0 on Victoria Park, 100 and 1000 particles  ~4 min
   em-polygon-intel   the em-polygon stage on the Intel lab's corrected poses       ~3 s
   mrclam             slam run --data mrclam:...:1                                  ~1 s
-  ipslam-intel       IPSLAM on the Intel lab, odometry seeds 1-3 and paper settings ~5 min
+  ipslam-intel       IPSLAM on the Intel lab, odometry seeds 1-3 (two settings) and paper settings ~6 min
   carmen-walls       configs/carmen-walls.toml beside MRPT icp-slam and rbpf-slam on the four
                      Radish logs with noisy odometry, seeds 1-3 (bench-laser-vs-mrpt.sh), and
                      on the logs' own odometry                                      ~10 min
@@ -219,6 +219,15 @@ def ipslam_intel(work):
     )
     runs = [run(f"ipslam-lo-{seed}", seed, tempered) for seed in (1, 2, 3)]
     paper = run("ipslam-paper-1", 1, '[estimator]\ntype = "ipslam"\n')
+    # The real-building laser odometry of configs/carmen-walls.toml and the compact options.
+    walls = (ROOT / "configs" / "carmen-walls.toml").read_text()
+    odometry = walls[walls.index("[data.laser_odometry]") : walls.index("[estimator]")]
+    compact = odometry + (
+        '[estimator]\ntype = "ipslam"\nlikelihood_scale = 0.02\nresample_threshold = 0.5\n'
+        "max_normal_distance = 0.1\nnew_cluster_min_points = 30\nprune_unconfirmed_after = 10\n"
+        "map_merge_max_sigma = 0.07\n"
+    )
+    compacts = [run(f"ipslam-compact-{seed}", seed, compact) for seed in (1, 2, 3)]
 
     def clusters(m):
         return sum(m["features"].get("ppca-line", {}).values())
@@ -230,12 +239,18 @@ def ipslam_intel(work):
     paths = " / ".join(f"{m['map_path_ate_rmse_m']:.2f}" for m in runs)
     counts = [clusters(m) for m in runs]
     fractions = [doubled(m) for m in runs]
+    compact_counts = " / ".join(str(clusters(m)) for m in compacts)
+    compact_fractions = " / ".join(f"{doubled(m):.1f}" for m in compacts)
     return (
         f"with `[data.laser_odometry]` and the motion proposal, 201 particles, tempered: "
         f"{ates} m (the map particle's path, `map_path.tum`: {paths} m), "
         f"{min(counts)}-{max(counts)} clusters, {min(fractions):.0f}-{max(fractions):.0f} % "
-        f"of the line length doubled; paper settings (seed 1): {paper['ate_rmse_m']:.2f} m, "
-        f"{clusters(paper)} clusters"
+        f"of the line length doubled; the same with `configs/carmen-walls.toml`'s laser "
+        f"odometry and the compact options (`new_cluster_min_points = 30`, "
+        f"`prune_unconfirmed_after = 10`, `map_merge_max_sigma = 0.07`): "
+        + " / ".join(f"{m['ate_rmse_m']:.2f}" for m in compacts)
+        + f" m, {compact_counts} clusters, {compact_fractions} % doubled; paper settings "
+        f"(seed 1): {paper['ate_rmse_m']:.2f} m, {clusters(paper)} clusters"
     )
 
 

@@ -252,20 +252,22 @@ impl<P: RobotPose> Ekf<P> {
     }
 
     /// Removes a confirmed feature that holds no shared block: its rows leave the state
-    /// (marginalized out), its track and map entry go.
-    pub(super) fn remove_feature(&mut self, id: FeatureId) -> Result<()> {
+    /// (marginalized out), its track and map entry go. Returns where each state row went
+    /// (`None`: removed).
+    pub(super) fn remove_feature(&mut self, id: FeatureId) -> Result<Vec<Option<usize>>> {
         if self.map.links(id)?.iter().any(Option::is_some) {
             return Err(Error::Invariant(format!(
                 "feature {} holds a shared block and cannot be removed",
                 id.0
             )));
         }
+        let mut remap: Vec<Option<usize>> = (0..self.cov.dim()).map(Some).collect();
         if let Some(rows) = self.rows.remove(&RowOwner::Feature(id)) {
             let mut dropped = vec![false; self.cov.dim()];
             for row in rows {
                 dropped[row] = true;
             }
-            let remap = self.cov.compact(&dropped);
+            remap = self.cov.compact(&dropped);
             for rows in self.rows.values_mut() {
                 for row in rows.iter_mut() {
                     *row = remap[*row]
@@ -279,7 +281,7 @@ impl<P: RobotPose> Ekf<P> {
         {
             self.ids.remove(&landmark);
         }
-        Ok(())
+        Ok(remap)
     }
 }
 

@@ -54,6 +54,8 @@ impl<P: RobotPose> Ekf<P> {
             }
         }
         report.rejected += self.update_batch(batch)?;
+        // The update may have removed a feature that could not take its step.
+        features.seen.retain(|&(_, id)| self.map.get(id).is_ok());
         // The update moved the pose: the frames of the extensions below are at the new one.
         self.frames.prepare(&self.pose, observations);
         for &(index, id) in &features.seen {
@@ -157,7 +159,11 @@ impl<P: RobotPose> Ekf<P> {
     /// One batch update (eqs. 28-32, 24). A state change that some feature cannot take (it
     /// would turn a wall or line around: a wrong association or a step far outside the
     /// linear range) is not applied; the pairings of those features are dropped and the
-    /// rest is updated again. Returns the number of pairings dropped.
+    /// rest is updated again. A feature that refuses a step it takes through correlations
+    /// only (no pairing of this batch measures it) is removed from the map instead, and the
+    /// batch updated again: it is degenerate for the filter (a wall a few centimetres long
+    /// whose free end is uncertain by a metre turns around under any step), and kept, it
+    /// would refuse every later update too. Returns the number of pairings dropped.
     fn update_batch(&mut self, mut batch: Vec<Pairing>) -> Result<usize> {
         let mut dropped = 0;
         while !batch.is_empty() {
@@ -172,15 +178,43 @@ impl<P: RobotPose> Ekf<P> {
             let refused = self.refusing_features(&prepared.dx)?;
             let before = batch.len();
             batch.retain(|p| !refused.contains(&p.feature));
-            if batch.len() == before {
-                // The refusing features were not measured: the step moves them through
-                // correlations only. Nothing safe is left to update.
+            if batch.len() == before && !self.remove_unmeasured(&refused, &mut batch)? {
+                // The refusing features were not measured and one of them holds a shared
+                // block, so it cannot be removed. Nothing safe is left to update.
                 dropped += batch.len();
                 break;
             }
             dropped += before - batch.len();
         }
         Ok(dropped)
+    }
+
+    /// Removes the features of `refused`, which no pairing of `batch` measures, and moves
+    /// the pairings' state rows to where the rows are after the removal. `false` (nothing
+    /// removed) when there is none or one of them holds a shared block.
+    fn remove_unmeasured(
+        &mut self,
+        refused: &BTreeSet<FeatureId>,
+        batch: &mut [Pairing],
+    ) -> Result<bool> {
+        for &id in refused {
+            if self.map.links(id)?.iter().any(Option::is_some) {
+                return Ok(false);
+            }
+        }
+        for &id in refused {
+            let remap = self.remove_feature(id)?;
+            for pairing in batch.iter_mut() {
+                for row in &mut pairing.indices {
+                    *row = remap.get(*row).copied().flatten().ok_or_else(|| {
+                        Error::Invariant("a measured state row was removed".into())
+                    })?;
+                }
+            }
+            self.skips
+                .count("update: a feature the step would turn around was removed");
+        }
+        Ok(!refused.is_empty())
     }
 
     /// The features that refuse the perturbation `dx` would give them (the slow path, after
@@ -385,7 +419,7 @@ impl<P: RobotPose> Ekf<P> {
 #[cfg(test)]
 mod tests {
     use slam_core::nalgebra::{DMatrix, Matrix2, Vector2};
-    use slam_core::{Estimator, Observation, Pose2, Pose3, Shape};
+    use slam_core::{Estimator, Observation, Pose2, Pose3, RowOwner, Shape};
     use slam_sensors::models::WallObservation;
 
     use super::super::{Ekf, EkfParams};
@@ -503,5 +537,80 @@ mod tests {
         let (inlier, rejected) = after_outlier(0.999, 0.305);
         assert_eq!(rejected, 0);
         assert_ne!(inlier, before);
+    }
+
+    fn segment(a: Vector2<f64>, b: Vector2<f64>, real: [bool; 2]) -> Observation {
+        let line_cov = Matrix2::new(1e-4, 0.0, 0.0, 4e-4);
+        let measurement = WallObservation::from_segment(a, b, line_cov, real, [0.05, 0.05]);
+        Observation {
+            robot_from_sensor: Pose3::identity(),
+            measurement: Box::new(measurement.unwrap()),
+            landmark_id: None,
+        }
+    }
+
+    /// The pose's `y` after a sighting of a long wall that puts it 5 cm off (from 0.05), the
+    /// count of features removed and of features left, with a 10 cm wall in the map whose
+    /// end is correlated with the pose's `y` by `coupling` (a degenerate wall: the step of
+    /// the pose moves its end by metres, past its start for one sign of `coupling`).
+    fn with_degenerate_wall(coupling: f64) -> (f64, usize, usize) {
+        let mut ekf = Ekf::new(
+            Pose2::identity(),
+            DMatrix::identity(3, 3) * 1e-2,
+            EkfParams::default(),
+        )
+        .unwrap();
+        let long = || {
+            segment(
+                Vector2::new(-1.0, 2.0),
+                Vector2::new(3.0, 2.0),
+                [false, false],
+            )
+        };
+        let short = || {
+            segment(
+                Vector2::new(2.0, -0.3),
+                Vector2::new(2.0, -0.2),
+                [true, true],
+            )
+        };
+        for _ in 0..8 {
+            ekf.update(&[long(), short()]).unwrap();
+        }
+        let short_id = ekf.map().iter().map(|(id, _)| id).max().unwrap();
+        let rows = ekf.rows[&RowOwner::Feature(short_id)].clone();
+        // Line, start and end rows: the last moves the end along the wall.
+        assert_eq!(rows.len(), 4);
+        let end_row = rows[3];
+        // The robot drives on: the pose is uncertain against the map, which can correct it.
+        let noise = DMatrix::identity(3, 3) * 1e-2;
+        ekf.cov.predict(&DMatrix::identity(3, 3), &noise);
+        let t = DMatrix::from_row_slice(2, 2, &[1.0, 0.0, coupling, 1.0]);
+        ekf.cov.transform_rows(&[1, end_row], &t).unwrap();
+        ekf.pose = Pose2::new(0.0, 0.05, 0.0);
+        let report = ekf.update(&[long()]).unwrap();
+        let removed = report
+            .skipped
+            .get("update: a feature the step would turn around was removed");
+        (ekf.pose().y, removed, ekf.map().len())
+    }
+
+    /// A feature that the update's step would turn around through its correlations alone is
+    /// removed, and the update goes through (before, the whole update was dropped, and every
+    /// later one too: on the noisy acapulco log the filter stopped updating 30 scans before
+    /// the end).
+    #[test]
+    fn a_degenerate_feature_moved_only_through_correlations_does_not_block_updates() {
+        for (coupling, removed) in [(20.0, 1), (80.0, 1), (-20.0, 0), (-80.0, 0)] {
+            let (y, removals, features) = with_degenerate_wall(coupling);
+            // The long wall corrects the pose either way.
+            assert!(y < 0.01, "coupling {coupling}: y {y}");
+            // The short wall goes when its end would pass its start, not when it lengthens.
+            assert_eq!(
+                (removals, features),
+                (removed, 2 - removed),
+                "coupling {coupling}"
+            );
+        }
     }
 }

@@ -38,8 +38,8 @@ pub use map_quality::{
     confirmed_wall_segments, map_quality, wall_segments,
 };
 pub use revisits::{
-    REVISIT_GAP_M, REVISIT_LINE_RATIO, REVISIT_MIN_NEIGHBOURS, REVISIT_RADIUS_M,
-    RevisitConsistency, revisit_consistency,
+    REVISIT_GAP_M, REVISIT_LINE_RATIO, REVISIT_MAX_MEASURED, REVISIT_MIN_NEIGHBOURS,
+    REVISIT_RADIUS_M, RevisitConsistency, revisit_consistency,
 };
 pub use trajectory::{AlignMode, Alignment, ErrorStats, associate, ate, umeyama};
 

@@ -1,10 +1,10 @@
 //! Loop consistency without ground truth or a map: how well the scans of places the robot
 //! came back to agree with each other, once placed by a path.
 //!
-//! Every kept scan reading ([`ScanSample`]) is placed by the pose of its time. Its
-//! neighbours are the readings within [`REVISIT_RADIUS_M`] that were taken at least
-//! [`REVISIT_GAP_M`] of travel away along the path (so on another pass, not by the scans
-//! just before or after it). Where at least [`REVISIT_MIN_NEIGHBOURS`] such neighbours lie
+//! Every kept scan reading ([`ScanSample`]) is placed by the pose of its time. For up to
+//! [`REVISIT_MAX_MEASURED`] of them, evenly spread over the sample, the neighbours are the
+//! readings within [`REVISIT_RADIUS_M`] that were taken at least [`REVISIT_GAP_M`] of travel
+//! away along the path (so on another pass, not by the scans just before or after it). Where at least [`REVISIT_MIN_NEIGHBOURS`] such neighbours lie
 //! along a line (the larger eigenvalue of their scatter at least [`REVISIT_LINE_RATIO`] times
 //! the smaller: a wall or another straight surface), the reading's distance to that line is
 //! one measurement. Their median is small when the passes register onto each other and grows
@@ -28,6 +28,9 @@ pub const REVISIT_GAP_M: f64 = 10.0;
 pub const REVISIT_RADIUS_M: f64 = 0.3;
 /// Fewest neighbours that define a surface.
 pub const REVISIT_MIN_NEIGHBOURS: usize = 6;
+/// At most this many readings, evenly spread over the sample, are measured (each against
+/// all the kept readings): enough for the median, and cheap (the sample holds 50,000).
+pub const REVISIT_MAX_MEASURED: usize = 5_000;
 /// Neighbours lie along a line when their scatter's larger eigenvalue is at least this many
 /// times the smaller (deviation along at least 4 times the deviation across).
 pub const REVISIT_LINE_RATIO: f64 = 16.0;
@@ -35,7 +38,7 @@ pub const REVISIT_LINE_RATIO: f64 = 16.0;
 /// How well the passes over the same places agree (see the module documentation).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct RevisitConsistency {
-    /// Readings with a line of neighbours from another pass (the measurements).
+    /// Measured readings with a line of neighbours from another pass (the measurements).
     pub readings: usize,
     /// Median distance of those readings to their neighbours' line, m.
     pub median_m: f64,
@@ -99,7 +102,8 @@ pub fn revisit_consistency(
     }
     let mut distances = Vec::new();
     let mut neighbours = Vec::new();
-    for (p, at) in &placed {
+    let stride = placed.len().div_ceil(REVISIT_MAX_MEASURED).max(1);
+    for (p, at) in placed.iter().step_by(stride) {
         neighbours.clear();
         let (cx, cy) = cell(p);
         for key in (cx - 1..=cx + 1).flat_map(|x| (cy - 1..=cy + 1).map(move |y| (x, y))) {

@@ -110,10 +110,14 @@ pub fn revisit_consistency(
             let Some(members) = grid.get(&key) else {
                 continue;
             };
+            // Plain arithmetic, the cheap test first: this loop runs millions of times.
             neighbours.extend(members.iter().filter_map(|&j| {
                 let (q, at_q) = &placed[j];
-                ((q - p).norm() <= REVISIT_RADIUS_M && (at_q - at).abs() >= REVISIT_GAP_M)
-                    .then_some(*q)
+                if (at_q - at).abs() < REVISIT_GAP_M {
+                    return None;
+                }
+                let (dx, dy) = (q.x - p.x, q.y - p.y);
+                (dx * dx + dy * dy <= REVISIT_RADIUS_M * REVISIT_RADIUS_M).then_some(*q)
             }));
         }
         if let Some(distance) = distance_to_line(p, &neighbours) {

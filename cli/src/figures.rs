@@ -270,10 +270,21 @@ fn point_covariance(c: &DMatrix<f64>, offset: usize) -> Option<Matrix2<f64>> {
     ))
 }
 
-/// The 95% ellipse of a 2-D covariance around `centre`, as a closed polyline.
+/// An ellipse is not drawn when a deviation is above this, m: the coordinate is unknown (an
+/// EKF row still at its uninformative prior, `new_row_variance` = 1e4 m^2 by default, when the
+/// update that would have measured it was refused), and a circle hundreds of metres wide would
+/// only shrink the map to a corner of the figure.
+const ELLIPSE_MAX_DEVIATION_M: f64 = 30.0;
+
+/// The 95% ellipse of a 2-D covariance around `centre`, as a closed polyline; `None` for an
+/// unknown coordinate ([`ELLIPSE_MAX_DEVIATION_M`]) or a covariance that is not one.
 fn ellipse(centre: Vector2<f64>, covariance: &Matrix2<f64>) -> Option<Vec<Vector2<f64>>> {
     let eigen = covariance.symmetric_eigen();
-    if eigen.eigenvalues.iter().any(|v| !v.is_finite() || *v < 0.0) {
+    if eigen
+        .eigenvalues
+        .iter()
+        .any(|v| !v.is_finite() || *v < 0.0 || v.sqrt() > ELLIPSE_MAX_DEVIATION_M)
+    {
         return None;
     }
     let scale = chi2_quantile(0.95, 2).ok()?.sqrt();
@@ -315,4 +326,27 @@ pub fn stage_figure(output: &PostProcessOutput, data: &str, with_points: bool) -
     figure.legend("path", palette::PATH);
     draw_plain_map(&mut figure, &output.map);
     figure
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ellipses_of_known_coordinates_are_drawn_and_unknown_ones_are_not() {
+        let centre = Vector2::new(1.0, 2.0);
+        // 95 % of a unit 2-D Gaussian lies within sqrt(5.991) = 2.448 of its mean.
+        let points = ellipse(centre, &Matrix2::identity()).unwrap();
+        assert!(
+            points
+                .iter()
+                .all(|p| ((p - centre).norm() - 2.4477).abs() < 1e-3)
+        );
+        let wide = Matrix2::new(25.0 * 25.0, 0.0, 0.0, 0.01);
+        assert!(ellipse(centre, &wide).is_some());
+        // A row still at the EKF's uninformative prior (1e4 m^2): unknown, not drawn.
+        let unknown = Matrix2::new(1e4, 0.0, 0.0, 0.01);
+        assert!(ellipse(centre, &unknown).is_none());
+        assert!(ellipse(centre, &Matrix2::new(f64::NAN, 0.0, 0.0, 1.0)).is_none());
+    }
 }

@@ -132,19 +132,6 @@ pub struct RevisitFigures {
     pub reference: Option<RevisitConsistency>,
 }
 
-/// The path the map belongs to: a particle filter's map path, else the estimates.
-fn map_poses(output: &RunOutput) -> Vec<(f64, Pose2)> {
-    match &output.map_path {
-        Some(path) => path.clone(),
-        None => output
-            .record
-            .estimates
-            .iter()
-            .map(|r| (r.time, r.pose))
-            .collect(),
-    }
-}
-
 /// The laser odometry's counts, as `metrics.json` holds them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub struct LaserOdometryReportView {
@@ -238,7 +225,7 @@ impl RunMetrics {
         if walls.is_empty() || sample.is_empty() {
             return None;
         }
-        let path = map_poses(output);
+        let path = output.record.map_poses(output.map_path.as_deref());
         let pose_at = |time: f64| {
             let k = path.partition_point(|(t, _)| *t < time);
             path.get(k)
@@ -265,7 +252,10 @@ impl RunMetrics {
         Some(RevisitFigures {
             gap_m: REVISIT_GAP_M,
             radius_m: REVISIT_RADIUS_M,
-            estimate: revisit_consistency(sample, &map_poses(output)),
+            estimate: revisit_consistency(
+                sample,
+                &output.record.map_poses(output.map_path.as_deref()),
+            ),
             reference: revisit_consistency(sample, &reference),
         })
     }

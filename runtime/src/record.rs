@@ -97,6 +97,15 @@ impl Recorder {
         crate::eval::true_poses(&self.truth)
     }
 
+    /// The path a map belongs to: `map_path` where there is one (a particle filter's path of
+    /// the particle whose map is kept), else the recorded estimates.
+    pub fn map_poses(&self, map_path: Option<&[(f64, Pose2)]>) -> Vec<(f64, Pose2)> {
+        match map_path {
+            Some(path) => path.to_vec(),
+            None => self.estimates.iter().map(|r| (r.time, r.pose)).collect(),
+        }
+    }
+
     /// ATE of `path` (a map path, or any poses of the run's times) against the run's truth.
     pub fn path_errors(&self, path: &[(f64, Pose2)]) -> Result<Option<TrajectoryErrors>> {
         path_errors(

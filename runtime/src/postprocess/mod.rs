@@ -38,15 +38,7 @@ pub struct FinishedRun<'a> {
 impl FinishedRun<'_> {
     /// The path the map belongs to: the map path where there is one, else the estimates.
     pub fn map_poses(&self) -> Vec<(f64, Pose2)> {
-        match self.map_path {
-            Some(path) => path.to_vec(),
-            None => self
-                .record
-                .estimates
-                .iter()
-                .map(|r| (r.time, r.pose))
-                .collect(),
-        }
+        self.record.map_poses(self.map_path)
     }
 }
 

@@ -18,8 +18,8 @@
 //!    map; unmatched old ones stay;
 //! 5. (an addition, `merge_map_clusters`, on by default) each map cluster that step 3 or 4
 //!    changed is merged with another map cluster near the scan that lies on the same line
-//!    (principal directions within `map_merge_angle_deg`, each centre within
-//!    `max_normal_distance` of the other's line, the segments overlapping or within
+//!    (principal directions within `map_merge_angle_deg`, the shorter one's centre within
+//!    `max_normal_distance` of the longer one's line, the segments overlapping or within
 //!    `max_normal_distance` of each other), the thinnest such union first, again and again
 //!    while the union finds a partner. The union is exact from the two clusters' moments
 //!    (count, centre, sample covariance: [`ppca::combine`]) and is refused when thick

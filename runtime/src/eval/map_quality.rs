@@ -194,10 +194,7 @@ pub fn map_quality(walls: &[(Vector2<f64>, Vector2<f64>)], points: &[Vector2<f64
         points.iter().map(|p| grid.distance(p)).collect()
     };
     distances.sort_by(f64::total_cmp);
-    let percentile = |q: f64| -> Option<f64> {
-        let last = distances.len().checked_sub(1)?;
-        Some(distances[((last as f64) * q).round() as usize])
-    };
+    let percentile = |q: f64| super::nearest_rank(&distances, q);
     MapQuality {
         walls: walls.len(),
         wall_length_m,

@@ -43,6 +43,13 @@ pub use revisits::{
 };
 pub use trajectory::{AlignMode, Alignment, ErrorStats, associate, ate, umeyama};
 
+/// The value at fraction `q` (0 to 1) of `sorted` (ascending), by the nearest rank
+/// (`round((n - 1) q)`); `None` when it is empty.
+pub(crate) fn nearest_rank(sorted: &[f64], q: f64) -> Option<f64> {
+    let last = sorted.len().checked_sub(1)?;
+    sorted.get(((last as f64) * q).round() as usize).copied()
+}
+
 /// The trajectory errors of a run against its ground truth (or reference) poses.
 #[derive(Clone, Debug, Serialize)]
 pub struct TrajectoryErrors {

@@ -20,7 +20,7 @@ use serde::Serialize;
 use slam_core::Pose2;
 use slam_core::nalgebra::Vector2;
 
-use super::ScanSample;
+use super::{ScanSample, nearest_rank};
 
 /// Readings closer than this along the path are not each other's neighbours, m.
 pub const REVISIT_GAP_M: f64 = 10.0;
@@ -178,16 +178,12 @@ fn distance_to_line(p: &Vector2<f64>, neighbours: &[Vector2<f64>]) -> Option<f64
 
 /// The statistics of the measurements.
 fn summary(mut distances: Vec<f64>) -> Option<RevisitConsistency> {
-    if distances.is_empty() {
-        return None;
-    }
     distances.sort_by(f64::total_cmp);
-    let at = |q: f64| distances[((distances.len() - 1) as f64 * q).round() as usize];
     Some(RevisitConsistency {
         readings: distances.len(),
-        median_m: at(0.5),
+        median_m: nearest_rank(&distances, 0.5)?,
         mean_m: distances.iter().sum::<f64>() / distances.len() as f64,
-        p90_m: at(0.9),
+        p90_m: nearest_rank(&distances, 0.9)?,
     })
 }
 

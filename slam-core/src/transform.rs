@@ -4,7 +4,7 @@
 //! This is the part of the measurement chain that is the same for every feature type: it
 //! depends only on the kinds of the coordinate blocks.
 
-use nalgebra::{DMatrix, Matrix2, Matrix2x6, Matrix3, Vector2};
+use nalgebra::{DMatrix, Matrix2, Matrix2x6, Matrix3, Matrix3x6, Vector2, Vector3};
 
 use crate::coords::{CoordBlock, Coordinates};
 use crate::error::{Error, Result};
@@ -176,11 +176,31 @@ impl MapToSensor {
         Ok((d_xo_d_sensor, *r))
     }
 
+    /// `J_os` and `J_of` of a 3-D point of the map (eq. 7): the `Point3` rows of
+    /// [`MapToSensor::transform_with_jacobians`], on the stack.
+    pub fn point3_jacobians(&self, world_point: &Vector3<f64>) -> (Matrix3x6<f64>, Matrix3<f64>) {
+        let offset = world_point - self.world_from_sensor.translation;
+        let r = &self.sensor_from_world_3d;
+        let mut d_xo_d_sensor = Matrix3x6::zeros();
+        d_xo_d_sensor.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-r));
+        for k in 0..3 {
+            d_xo_d_sensor
+                .fixed_view_mut::<3, 1>(0, 3 + k)
+                .copy_from(&(self.d_rotation_3d[k] * offset));
+        }
+        (d_xo_d_sensor, *r)
+    }
+
+    /// A 3-D point of the map in the sensor frame (eq. 7): the `Point3` case of
+    /// [`MapToSensor::transform_block`].
+    pub fn transform_point3(&self, world_point: &Vector3<f64>) -> Vector3<f64> {
+        self.sensor_from_world_3d * (world_point - self.world_from_sensor.translation)
+    }
+
     /// One block in the sensor frame (eq. 7, 8 or 9 by kind).
     pub fn transform_block(&self, block: &CoordBlock) -> Result<CoordBlock> {
-        let t = &self.world_from_sensor.translation;
         Ok(match block {
-            CoordBlock::Point3(p) => CoordBlock::Point3(self.sensor_from_world_3d * (p - t)),
+            CoordBlock::Point3(p) => CoordBlock::Point3(self.transform_point3(p)),
             CoordBlock::Point2(p) => CoordBlock::Point2(self.transform_point2(p)?),
             CoordBlock::Scalar(s) => CoordBlock::Scalar(*s),
         })
@@ -224,20 +244,15 @@ impl MapToSensor {
         let dim = x_m.dim();
         let mut d_xo_d_sensor = DMatrix::zeros(dim, 6);
         let mut d_xo_d_xm = DMatrix::zeros(dim, dim);
-        let t = &self.world_from_sensor.translation;
         let mut row = 0;
         for block in x_m.blocks() {
             match block {
                 CoordBlock::Point3(p) => {
-                    let offset = p - t;
-                    let r = &self.sensor_from_world_3d;
-                    d_xo_d_sensor.view_mut((row, 0), (3, 3)).copy_from(&(-r));
-                    for k in 0..3 {
-                        d_xo_d_sensor
-                            .view_mut((row, 3 + k), (3, 1))
-                            .copy_from(&(self.d_rotation_3d[k] * offset));
-                    }
-                    d_xo_d_xm.view_mut((row, row), (3, 3)).copy_from(r);
+                    let (d_sensor, d_xm) = self.point3_jacobians(p);
+                    d_xo_d_sensor
+                        .view_mut((row, 0), (3, 6))
+                        .copy_from(&d_sensor);
+                    d_xo_d_xm.view_mut((row, row), (3, 3)).copy_from(&d_xm);
                 }
                 CoordBlock::Point2(p) => {
                     let (d_sensor, d_xm) = self.point2_jacobians(p)?;

@@ -1,9 +1,10 @@
 //! Range and bearing from a planar sensor to a point landmark (the classic EKF-SLAM case).
 
-use slam_core::nalgebra::{DMatrix, DVector, Vector3};
+use slam_core::nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Vector2, Vector3};
 use slam_core::{
-    CoordBlock, Coordinates, Error, Feature, Innovation, MeasurementModel, Pose3, Result,
-    ensure_finite, wrap_angle,
+    CoordBlock, Coordinates, Error, Feature, Innovation, LinearizedMeasurement, MapToSensor,
+    MeasurementModel, OwnLinearization, Pose3, Result, SensorFrame, chain_covariance,
+    chain_product, ensure_finite, wrap_angle,
 };
 use slam_features::Point;
 
@@ -55,6 +56,46 @@ impl RangeBearing {
     }
 }
 
+/// [`Innovation`]'s fields for a range and bearing, on the stack.
+struct InnovationParts {
+    eta: Vector2<f64>,
+    d_eta_d_xo: Matrix2x3<f64>,
+    d_eta_d_v: Matrix2<f64>,
+    cov_v: Matrix2<f64>,
+}
+
+impl RangeBearing {
+    /// `eta` and its Jacobians at the point `p` in the sensor frame.
+    fn innovation_parts(&self, p: &Vector3<f64>) -> Result<InnovationParts> {
+        let r2 = p.x * p.x + p.y * p.y;
+        if r2 < 1e-18 {
+            return Err(Error::Degenerate("landmark at the sensor origin".into()));
+        }
+        let r = r2.sqrt();
+        Ok(InnovationParts {
+            eta: Vector2::new(r - self.range, wrap_angle(p.y.atan2(p.x) - self.bearing)),
+            d_eta_d_xo: Matrix2x3::new(p.x / r, p.y / r, 0.0, -p.y / r2, p.x / r2, 0.0),
+            d_eta_d_v: Matrix2::new(-1.0, 0.0, 0.0, -1.0),
+            cov_v: Matrix2::new(
+                self.sigma_range.powi(2),
+                0.0,
+                0.0,
+                self.sigma_bearing.powi(2),
+            ),
+        })
+    }
+}
+
+/// A small stack matrix as a dynamic one.
+fn dynamic<R: slam_core::nalgebra::Dim, C: slam_core::nalgebra::Dim, S>(
+    matrix: &slam_core::nalgebra::Matrix<f64, R, C, S>,
+) -> DMatrix<f64>
+where
+    S: slam_core::nalgebra::RawStorage<f64, R, C>,
+{
+    DMatrix::from_fn(matrix.nrows(), matrix.ncols(), |i, j| matrix[(i, j)])
+}
+
 impl MeasurementModel for RangeBearing {
     type Feature = Point;
 
@@ -62,33 +103,62 @@ impl MeasurementModel for RangeBearing {
         let [CoordBlock::Point3(p)] = x_o.blocks() else {
             return Err(Error::InvalidArgument("a point is one 3-D block".into()));
         };
-        let r2 = p.x * p.x + p.y * p.y;
-        if r2 < 1e-18 {
-            return Err(Error::Degenerate("landmark at the sensor origin".into()));
-        }
-        let r = r2.sqrt();
+        let parts = self.innovation_parts(p)?;
         Ok(Innovation {
-            eta: DVector::from_column_slice(&[
-                r - self.range,
-                wrap_angle(p.y.atan2(p.x) - self.bearing),
-            ]),
-            d_eta_d_xo: DMatrix::from_row_slice(
-                2,
-                3,
-                &[p.x / r, p.y / r, 0.0, -p.y / r2, p.x / r2, 0.0],
-            ),
-            d_eta_d_v: DMatrix::from_row_slice(2, 2, &[-1.0, 0.0, 0.0, -1.0]),
-            cov_v: DMatrix::from_row_slice(
-                2,
-                2,
-                &[
-                    self.sigma_range.powi(2),
-                    0.0,
-                    0.0,
-                    self.sigma_bearing.powi(2),
-                ],
-            ),
+            eta: DVector::from_column_slice(parts.eta.as_slice()),
+            d_eta_d_xo: dynamic(&parts.d_eta_d_xo),
+            d_eta_d_v: dynamic(&parts.d_eta_d_v),
+            cov_v: dynamic(&parts.cov_v),
         })
+    }
+
+    /// The generic chain on stack matrices: `x_o = R (p - t)`, `J_of = R`, and `B~` the
+    /// point's own (its active subspaces).
+    fn linearize_own(
+        &self,
+        point: &Point,
+        to_sensor: &MapToSensor,
+    ) -> Option<Result<OwnLinearization>> {
+        let own = || {
+            let position = point.position();
+            let parts = self.innovation_parts(&to_sensor.transform_point3(&position))?;
+            let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, to_sensor.rotation_3d());
+            Ok(OwnLinearization {
+                eta: DVector::from_column_slice(parts.eta.as_slice()),
+                cov_eta: dynamic(&chain_covariance(&parts.d_eta_d_v, &parts.cov_v)),
+                d_eta_d_own: dynamic(&chain_product(&d_eta_d_xf, &point.dual()?)),
+            })
+        };
+        Some(own())
+    }
+
+    /// The generic chain on stack matrices, as [`MeasurementModel::linearize_own`] with the
+    /// sensor columns `J_eta_o J_os` and the robot's `J_eta_o J_os J_sr`; a point shares no
+    /// block. The EKF calls it for every pairing of a step.
+    fn linearize_at(
+        &self,
+        point: &Point,
+        frame: &SensorFrame,
+    ) -> Option<Result<LinearizedMeasurement>> {
+        let lin = || {
+            let position = point.position();
+            let to_sensor = &frame.to_sensor;
+            let (d_xo_d_sensor, d_xo_d_xm) = to_sensor.point3_jacobians(&position);
+            let parts = self.innovation_parts(&to_sensor.transform_point3(&position))?;
+            let d_eta_d_sensor = chain_product(&parts.d_eta_d_xo, &d_xo_d_sensor);
+            let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, &d_xo_d_xm);
+            let d_eta_d_robot = chain_product(&d_eta_d_sensor, &frame.pose.d_sensor_d_robot);
+            Ok(LinearizedMeasurement {
+                eta: DVector::from_column_slice(parts.eta.as_slice()),
+                cov_eta: dynamic(&chain_covariance(&parts.d_eta_d_v, &parts.cov_v)),
+                d_eta_d_robot: dynamic(&d_eta_d_robot),
+                d_eta_d_sensor: dynamic(&d_eta_d_sensor),
+                d_eta_d_own: dynamic(&chain_product(&d_eta_d_xf, &point.dual()?)),
+                d_eta_d_shared: Vec::new(),
+                d_eta_d_xf: dynamic(&d_eta_d_xf),
+            })
+        };
+        Some(lin())
     }
 
     fn measurement(&self) -> DVector<f64> {

@@ -20,13 +20,7 @@ use slam_core::{Error, FeatureId, Result, RobotPose, RowOwner, Shape};
 
 use super::Ekf;
 use super::jacobians::project_out;
-
-/// Variance of the constraint that makes two features one (as for corners: tight, not
-/// perfect).
-const MERGE_CONSTRAINT_VARIANCE: f64 = 1e-4;
-
-/// Largest angle between two segments tested as duplicates, rad.
-const MERGE_ANGLE: f64 = 0.25;
+use crate::lifecycle::{MERGE_ANGLE, MERGE_CONSTRAINT_VARIANCE};
 
 impl<P: RobotPose> Ekf<P> {
     /// Merges feature `id` with every confirmed feature that is the same one (see the module

@@ -6,14 +6,15 @@ use std::sync::Arc;
 
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{
-    DynMeasurementModel, Feature, FeatureMap, Observation, OwnLinearization, Pose3, Result,
-    RobotPose, SensorFrame, Skips, linearize_own_at,
+    DynMeasurementModel, Extension, Feature, FeatureMap, Observation, OwnLinearization, Pose3,
+    Result, RobotPose, SensorFrame, Skips, linearize_own_at,
 };
 
 use super::small;
 use crate::association::BoundingBox;
 use crate::lifecycle::{
-    LifecycleSettings, OUTSIDE_MSPACE_TOLERANCE, Track, drop_views_when_grown, extension_of, grow,
+    LifecycleSettings, MERGE_ANGLE, MERGE_CONSTRAINT_VARIANCE, OUTSIDE_MSPACE_TOLERANCE, Track,
+    drop_views_when_grown, extension_of, grow,
 };
 use crate::particles::log_normal;
 use crate::particles::pvec::{PVec, Summary};
@@ -64,6 +65,107 @@ impl<P> Default for LandmarkMap<P> {
             tentative: Vec::new(),
             pending: None,
         }
+    }
+}
+
+/// How [`LandmarkMap::merge_duplicates`] tests pairs.
+pub(super) struct MergeSettings<'a> {
+    /// Features farther apart than this are not tested, m.
+    pub distance: f64,
+    /// Model error on top of the pair's covariance.
+    pub tolerance: f64,
+    /// The chi-square gate of the coincidence residual for its dimension.
+    pub gate: &'a dyn Fn(usize) -> Result<f64>,
+}
+
+impl<P: RobotPose> LandmarkMap<P> {
+    /// Merges the duplicates among the confirmed features without a landmark id, each
+    /// with every feature of its kind whose shape overlaps its shape within the settings'
+    /// distance and that passes [`Landmark::absorb`]; the one seen more often is kept.
+    /// Returns the number of features removed. A pair that cannot be tested (its
+    /// coincidence or a change fails) stays two features, counted in `skips`.
+    pub(super) fn merge_duplicates(
+        &mut self,
+        settings: &MergeSettings<'_>,
+        skips: &mut Skips,
+    ) -> usize {
+        let slots: Vec<usize> = self.landmarks.iter().map(|(slot, _)| slot).collect();
+        let mut removed = 0;
+        for slot in slots {
+            let mut current = slot;
+            for other in self.merge_candidates(slot, settings.distance) {
+                match self.try_merge(current, other, settings, skips) {
+                    Ok(Some(kept)) => {
+                        current = kept;
+                        removed += 1;
+                    }
+                    Ok(None) => {}
+                    Err(_) => skips.count("merge: the pair could not be tested"),
+                }
+            }
+        }
+        removed
+    }
+
+    /// The confirmed features without a landmark id of `slot`'s kind whose shape overlaps
+    /// its shape within `distance`.
+    fn merge_candidates(&self, slot: usize, distance: f64) -> Vec<usize> {
+        let Some(landmark) = self.landmarks.get(slot) else {
+            return Vec::new();
+        };
+        let feature = landmark.feature.as_ref();
+        let Some(shape) = feature.shape() else {
+            return Vec::new();
+        };
+        if feature.mspace_dim() == 0 || landmark.track.landmark_id.is_some() {
+            return Vec::new();
+        }
+        let near = BoundingBox::of(feature.coordinates());
+        self.landmarks
+            .iter_where(|bbox| bbox.near(&near, distance))
+            .into_iter()
+            .filter(|(other, l, _)| {
+                *other != slot
+                    && l.feature.kind() == feature.kind()
+                    && l.feature.mspace_dim() > 0
+                    && l.track.landmark_id.is_none()
+                    && l.feature
+                        .shape()
+                        .and_then(|s| shape.overlap_separation(&s, MERGE_ANGLE))
+                        .is_some_and(|d| d <= distance)
+            })
+            .map(|(other, _, _)| other)
+            .collect()
+    }
+
+    /// Merges the features in slots `a` and `b` if they are one; returns the slot kept.
+    fn try_merge(
+        &mut self,
+        a: usize,
+        b: usize,
+        settings: &MergeSettings<'_>,
+        skips: &mut Skips,
+    ) -> Result<Option<usize>> {
+        let (Some(first), Some(second)) = (self.landmarks.get(a), self.landmarks.get(b)) else {
+            return Ok(None);
+        };
+        let (keep, drop) = if second.track.sightings > first.track.sightings {
+            (b, a)
+        } else {
+            (a, b)
+        };
+        let (Some(mut kept), Some(dropped)) =
+            (self.landmarks.get(keep).cloned(), self.landmarks.get(drop))
+        else {
+            return Ok(None);
+        };
+        // Tested on a copy: the shared map is copied on write only when the pair merges.
+        if !kept.absorb(dropped, settings.tolerance, settings.gate, skips)? {
+            return Ok(None);
+        }
+        self.landmarks.set(keep, Some(kept));
+        self.landmarks.set(drop, None);
+        Ok(Some(keep))
     }
 }
 
@@ -138,27 +240,83 @@ impl<P: RobotPose> Landmark<P> {
     }
 
     /// [`Landmark::update`] with the measurement already linearized at this feature (as it
-    /// is now) from the sensor's pose.
-    pub(super) fn update_linearized(&mut self, lin: &OwnLinearization, skips: &mut Skips) {
+    /// is now) from the sensor's pose. Returns whether the update was applied.
+    pub(super) fn update_linearized(&mut self, lin: &OwnLinearization, skips: &mut Skips) -> bool {
         let n = self.feature.mspace_dim();
         if n == 0 || self.cov.shape() != (n, n) {
-            return;
+            return false;
         }
         let Some((dx, cov)) = self.ekf_step(lin) else {
             skips.count("update: innovation covariance not positive definite");
-            return;
+            return false;
         };
         if !dx.iter().all(|v| v.is_finite()) {
             skips.count("update: non-finite state change");
-            return;
+            return false;
         }
         // A refused change leaves the feature as it was (the `Feature` contract, checked by
         // the conformance suite), so no copy is kept to fall back on.
         if self.feature.apply_perturbation(&dx).is_err() {
             skips.count("update: state change refused by the feature");
-            return;
+            return false;
         }
         self.cov = cov;
+        true
+    }
+
+    /// Tests whether `other`, another confirmed feature of the same particle, is this same
+    /// feature, and if so takes it in; returns whether it did. The EKF's test
+    /// ([`crate::ekf`]'s duplicate merging) with the two independent given the particle's
+    /// path: the coincidence residual `r` ([`Feature::coincidence`]) with
+    /// `H_s = J_s B~_s`, `H_o = J_o B~_o` passes when
+    /// `r^T (H_s P_s H_s^T + H_o P_o H_o^T + t^2 I)^-1 r <= gate`; this feature then takes
+    /// `r = 0` as a measurement with noise `H_o P_o H_o^T + (1e-4 + t^2) I` (the marginal of
+    /// the EKF's joint constraint), grows over the other's extent
+    /// ([`Feature::absorbed`]) and adds its sightings. The caller removes `other`.
+    pub(super) fn absorb(
+        &mut self,
+        other: &Landmark<P>,
+        tolerance: f64,
+        gate: &dyn Fn(usize) -> Result<f64>,
+        skips: &mut Skips,
+    ) -> Result<bool> {
+        let Some(coincidence) = self.feature.coincidence(other.feature.as_ref())? else {
+            return Ok(false);
+        };
+        let (own, others) = (self.feature.mspace_dim(), other.feature.mspace_dim());
+        if own == 0 || others == 0 || self.cov.shape() != (own, own) {
+            return Ok(false);
+        }
+        if other.cov.shape() != (others, others) {
+            return Ok(false);
+        }
+        let h_self = &coincidence.d_self * self.feature.dual()?;
+        let h_other = &coincidence.d_other * other.feature.dual()?;
+        let m = coincidence.residual.len();
+        let tolerance = DMatrix::identity(m, m) * tolerance.powi(2);
+        let from_other = &h_other * &other.cov * h_other.transpose();
+        let s = &h_self * &self.cov * h_self.transpose() + &from_other + &tolerance;
+        let Some(s_inv) = s.try_inverse() else {
+            skips.count("merge: singular difference covariance");
+            return Ok(false);
+        };
+        let d2 = (coincidence.residual.transpose() * s_inv * &coincidence.residual)[(0, 0)];
+        if d2.is_nan() || d2 > gate(m)? {
+            return Ok(false);
+        }
+        let constraint = OwnLinearization {
+            eta: coincidence.residual,
+            cov_eta: from_other + tolerance + DMatrix::identity(m, m) * MERGE_CONSTRAINT_VARIANCE,
+            d_eta_d_own: h_self,
+        };
+        if !self.update_linearized(&constraint, skips) {
+            return Ok(false);
+        }
+        if let Some(extension) = self.feature.absorbed(other.feature.as_ref())? {
+            self.apply_extension(extension, skips)?;
+        }
+        self.track.sightings += other.track.sightings;
+        Ok(true)
     }
 
     /// `dx = -K eta` and the Joseph-form covariance `(I - K H) P (I - K H)^T + K C K^T`
@@ -244,6 +402,12 @@ impl<P: RobotPose> Landmark<P> {
         ) else {
             return Ok(());
         };
+        self.apply_extension(extension, skips)
+    }
+
+    /// Changes the feature's coordinates outside its M-space by `extension`, with the map
+    /// of its rows that the change implies.
+    fn apply_extension(&mut self, extension: Extension, skips: &mut Skips) -> Result<()> {
         let mut single = FeatureMap::new();
         let id = single.insert(slam_core::dyn_clone::clone_box(self.feature.as_ref()))?;
         let Ok(transform) =

@@ -8,7 +8,9 @@
 //! triangulation, extension outside the M-space, pruning) and the shared association
 //! ([`crate::association`]: known landmark ids, else gated nearest neighbour or JCBB, **per
 //! particle**). Shared corners (section VI) are not joined: each particle's features stay
-//! independent, as FastSLAM requires.
+//! independent, as FastSLAM requires. Duplicates in a particle's map (a wall mapped twice
+//! after drift) are merged when `merge_duplicates` is set, by the EKF's test on the pair's
+//! coincidence residual with the two features independent given the particle's path.
 //!
 //! - **Weights** (log space): each paired observation multiplies the particle's weight by
 //!   `N(eta; 0, S)`, `S = H_f P_f H_f^T + C_eta` (`2 C_eta` against a tentative feature);
@@ -43,7 +45,7 @@ use slam_core::{
 use crate::association::{Association, AssociationSettings, Gates};
 use crate::lifecycle::{LifecycleSettings, first_failure};
 use crate::particles::{ParticleSet, stream};
-use landmark::{Landmark, LandmarkMap};
+use landmark::{Landmark, LandmarkMap, MergeSettings};
 use step::{ParticleStep, StepContext};
 
 /// How particles draw their poses.
@@ -103,6 +105,22 @@ pub struct FastSlamParams {
     /// An unmatched observation does not start a feature that would overlap an existing
     /// one of its kind within this distance, m (0: off): it would double that feature.
     pub new_feature_clearance: f64,
+    /// Merge the duplicates of the map the filter reports (the best particle's, as
+    /// [`Estimator::map`] gives it): each confirmed feature is tested against the confirmed
+    /// features of its kind that overlap it within `merge_distance`, by the EKF's rule
+    /// ([`crate::EkfParams::merge_duplicates`]) with the two features independent given the
+    /// particle's path, and a pair that is one feature becomes one. The particles' own maps
+    /// are left as they are: merging inside the filter cleaned the maps but made the paths
+    /// worse on real logs (a merged wall moves between the two without the particle's pose
+    /// following; BENCHMARKS.md). Off by default.
+    pub merge_duplicates: bool,
+    /// Probability of the chi-square gate on the pair's coincidence residual.
+    pub merge_probability: f64,
+    /// Features farther apart than this are not tested, m.
+    pub merge_distance: f64,
+    /// Model error allowed on top of the pair's covariance (standard deviation, in the
+    /// residual's units: m for a wall's offset).
+    pub merge_tolerance: f64,
 }
 
 impl Default for FastSlamParams {
@@ -122,6 +140,10 @@ impl Default for FastSlamParams {
             association_margin: 3.0,
             jcbb_max_nodes: 20_000,
             new_feature_clearance: 0.0,
+            merge_duplicates: false,
+            merge_probability: 0.99,
+            merge_distance: 0.5,
+            merge_tolerance: 0.0,
         }
     }
 }
@@ -141,6 +163,20 @@ impl FastSlamParams {
                 "resample_threshold in [0, 1]",
             ),
         ];
+        checks.extend([
+            (
+                self.merge_probability > 0.0 && self.merge_probability < 1.0,
+                "merge_probability in (0, 1)",
+            ),
+            (
+                self.merge_distance.is_finite() && self.merge_distance >= 0.0,
+                "merge_distance >= 0",
+            ),
+            (
+                self.merge_tolerance.is_finite() && self.merge_tolerance >= 0.0,
+                "merge_tolerance >= 0",
+            ),
+        ]);
         checks.extend(self.association_settings().checks());
         checks.extend(self.lifecycle_settings().checks());
         first_failure("FastSLAM", &checks)
@@ -171,10 +207,13 @@ impl FastSlamParams {
 
 /// The best particle's map as a [`FeatureMap`], built on demand.
 #[derive(Debug)]
-struct Snapshot {
+struct Snapshot<P> {
     map: FeatureMap,
     /// The particle slot of each feature id of `map`.
     slots: Vec<usize>,
+    /// The best particle's map with its duplicates merged (`merge_duplicates`); `None`:
+    /// the particle's own.
+    merged: Option<LandmarkMap<P>>,
 }
 
 /// FastSLAM 1.0 over robot poses of type `P` (see the module documentation).
@@ -193,7 +232,7 @@ pub struct FastSlam<P: RobotPose> {
     gates: Gates,
     /// Update steps so far.
     step: usize,
-    snapshot: OnceLock<Snapshot>,
+    snapshot: OnceLock<Snapshot<P>>,
 }
 
 impl<P: RobotPose> FastSlam<P> {
@@ -202,7 +241,11 @@ impl<P: RobotPose> FastSlam<P> {
     pub fn new(pose: P, pose_covariance: DMatrix<f64>, params: FastSlamParams) -> Result<Self> {
         params.validate()?;
         let set = ParticleSet::new(pose, &pose_covariance, params.particles, params.seed)?;
-        let gates = Gates::new(&[params.gate_probability, params.new_feature_probability])?;
+        let gates = Gates::new(&[
+            params.gate_probability,
+            params.new_feature_probability,
+            params.merge_probability,
+        ])?;
         Ok(FastSlam {
             params,
             set,
@@ -237,11 +280,27 @@ impl<P: RobotPose> FastSlam<P> {
         self.set.effective_sample_size()
     }
 
-    fn snapshot(&self) -> &Snapshot {
+    fn snapshot(&self) -> &Snapshot<P> {
         self.snapshot.get_or_init(|| {
+            let merged = self.params.merge_duplicates.then(|| {
+                let mut merged = self.set.best_particle().map.clone();
+                let gates = &self.gates;
+                let probability = self.params.merge_probability;
+                let settings = MergeSettings {
+                    distance: self.params.merge_distance,
+                    tolerance: self.params.merge_tolerance,
+                    gate: &|dof| gates.gate(probability, dof),
+                };
+                merged.merge_duplicates(&settings, &mut slam_core::Skips::default());
+                merged
+            });
+            let landmarks = match &merged {
+                Some(merged) => &merged.landmarks,
+                None => &self.set.best_particle().map.landmarks,
+            };
             let mut map = FeatureMap::new();
             let mut slots = Vec::new();
-            for (slot, landmark) in self.set.best_particle().map.landmarks.iter() {
+            for (slot, landmark) in landmarks.iter() {
                 if map
                     .insert(slam_core::dyn_clone::clone_box(landmark.feature.as_ref()))
                     .is_ok()
@@ -249,13 +308,17 @@ impl<P: RobotPose> FastSlam<P> {
                     slots.push(slot);
                 }
             }
-            Snapshot { map, slots }
+            Snapshot { map, slots, merged }
         })
     }
 
     fn landmark_of(&self, id: FeatureId) -> Option<&Landmark<P>> {
-        let slot = *self.snapshot().slots.get(id.0)?;
-        self.set.best_particle().map.landmarks.get(slot)
+        let snapshot = self.snapshot();
+        let slot = *snapshot.slots.get(id.0)?;
+        match &snapshot.merged {
+            Some(merged) => merged.landmarks.get(slot),
+            None => self.set.best_particle().map.landmarks.get(slot),
+        }
     }
 
     /// FastSLAM 2.0's prediction: each particle's mean moves, and the covariance waits for

@@ -323,3 +323,70 @@ fn bad_parameters_are_errors() {
         assert!(FastSlam::new(Pose2::identity(), DMatrix::zeros(3, 3), params).is_err());
     }
 }
+
+/// A wall seen from the origin along `y = offset`, from `x = a` to `x = b`.
+fn wall_sighting(offset: f64, a: f64, b: f64) -> Observation {
+    use slam_core::nalgebra::{Matrix2, Vector2};
+    let measurement = slam_sensors::models::WallObservation::from_segment(
+        Vector2::new(a, offset),
+        Vector2::new(b, offset),
+        Matrix2::new(1e-4, 0.0, 0.0, 4e-4),
+        [false, false],
+        [0.05, 0.05],
+    )
+    .unwrap();
+    Observation {
+        robot_from_sensor: Pose3::identity(),
+        measurement: Box::new(measurement),
+        landmark_id: None,
+    }
+}
+
+/// One particle standing still that sees the two walls twice: the extents of the confirmed
+/// walls of the map it reports. Its own map keeps both walls either way.
+fn walls_seen_twice(merge: bool, offsets: [f64; 2]) -> Vec<(f64, f64)> {
+    let params = FastSlamParams {
+        particles: 1,
+        confirm_after: 1,
+        merge_duplicates: merge,
+        ..Default::default()
+    };
+    let mut filter = FastSlam::new(Pose2::identity(), DMatrix::zeros(3, 3), params).unwrap();
+    let still = Unicycle::new(0.0, 0.0, 0.1, 1e-3, 1e-3, Integration::Arc).unwrap();
+    for _ in 0..2 {
+        filter.predict(&still).unwrap();
+        let sightings = [
+            wall_sighting(offsets[0], 0.0, 3.0),
+            wall_sighting(offsets[1], 2.0, 5.0),
+        ];
+        filter.update(&sightings).unwrap();
+    }
+    let own = filter.set.best_particle().map.landmarks.iter();
+    assert_eq!(own.filter(|(_, l)| l.feature.mspace_dim() > 0).count(), 2);
+    let mut extents: Vec<(f64, f64)> = filter
+        .map()
+        .iter()
+        .filter(|(_, f)| f.mspace_dim() > 0)
+        .filter_map(|(_, f)| match f.shape() {
+            Some(slam_core::Shape::Wall { start, end }) => {
+                Some((start.x.min(end.x), start.x.max(end.x)))
+            }
+            _ => None,
+        })
+        .collect();
+    extents.sort_by(|a, b| a.0.total_cmp(&b.0));
+    extents
+}
+
+/// A wall mapped twice (two overlapping sightings 1 cm apart) is one wall over both extents
+/// in the reported map when merging is on, and two when it is off; walls 30 cm apart stay
+/// two.
+#[test]
+fn a_wall_mapped_twice_is_one_wall_in_the_reported_map() {
+    assert_eq!(walls_seen_twice(false, [2.0, 2.01]).len(), 2);
+    let merged = walls_seen_twice(true, [2.0, 2.01]);
+    assert_eq!(merged.len(), 1, "{merged:?}");
+    let (from, to) = merged[0];
+    assert!(from < 0.05 && to > 4.95, "{merged:?}");
+    assert_eq!(walls_seen_twice(true, [2.0, 2.3]).len(), 2);
+}

@@ -411,3 +411,11 @@ pub(crate) fn extension_of(
 
 /// Largest `|B (x_new - x_old)|` accepted for a change outside the M-space.
 pub(crate) const OUTSIDE_MSPACE_TOLERANCE: f64 = 1e-6;
+
+/// Largest angle between two segments tested as duplicates, rad (the EKF's and FastSLAM's
+/// duplicate merging).
+pub(crate) const MERGE_ANGLE: f64 = 0.25;
+
+/// Variance of the constraint that makes two duplicates one (as for corners: tight, not
+/// perfect), in the coincidence residual's units squared.
+pub(crate) const MERGE_CONSTRAINT_VARIANCE: f64 = 1e-4;

@@ -344,7 +344,7 @@ fn wall_sighting(offset: f64, a: f64, b: f64) -> Observation {
 
 /// One particle standing still that sees the two walls twice: the extents of the confirmed
 /// walls of the map it reports. Its own map keeps both walls either way.
-fn walls_seen_twice(merge: bool, offsets: [f64; 2]) -> Vec<(f64, f64)> {
+fn walls_seen_twice(merge: bool, offsets: [f64; 2]) -> Vec<(f64, f64, f64)> {
     let params = FastSlamParams {
         particles: 1,
         confirm_after: 1,
@@ -363,14 +363,16 @@ fn walls_seen_twice(merge: bool, offsets: [f64; 2]) -> Vec<(f64, f64)> {
     }
     let own = filter.set.best_particle().map.landmarks.iter();
     assert_eq!(own.filter(|(_, l)| l.feature.mspace_dim() > 0).count(), 2);
-    let mut extents: Vec<(f64, f64)> = filter
+    let mut extents: Vec<(f64, f64, f64)> = filter
         .map()
         .iter()
         .filter(|(_, f)| f.mspace_dim() > 0)
         .filter_map(|(_, f)| match f.shape() {
-            Some(slam_core::Shape::Wall { start, end }) => {
-                Some((start.x.min(end.x), start.x.max(end.x)))
-            }
+            Some(slam_core::Shape::Wall { start, end }) => Some((
+                start.x.min(end.x),
+                start.x.max(end.x),
+                0.5 * (start.y + end.y),
+            )),
             _ => None,
         })
         .collect();
@@ -386,7 +388,9 @@ fn a_wall_mapped_twice_is_one_wall_in_the_reported_map() {
     assert_eq!(walls_seen_twice(false, [2.0, 2.01]).len(), 2);
     let merged = walls_seen_twice(true, [2.0, 2.01]);
     assert_eq!(merged.len(), 1, "{merged:?}");
-    let (from, to) = merged[0];
+    let (from, to, offset) = merged[0];
     assert!(from < 0.05 && to > 4.95, "{merged:?}");
+    // Fused between the two, not pushed away from either.
+    assert!((2.0..=2.01).contains(&offset), "{merged:?}");
     assert_eq!(walls_seen_twice(true, [2.0, 2.3]).len(), 2);
 }

@@ -486,7 +486,19 @@ impl StateCovariance {
         // C H^T on the touched columns only (the pose's and the observed features' rows):
         // one product of n x |T| by |T| x m.
         let c_cols = self.columns(&dense_cols);
-        let h_t = Mat::<f64>::from_fn(columns.len(), m, |c, q| h[(rows[q], columns[c].0)]);
+        // Every measurement row and every column of `h` in order (the usual batch): `h^T`
+        // and `R` are copies of the whole matrices.
+        let whole = rows.len() == h.nrows()
+            && columns.len() == h.ncols()
+            && rows.iter().enumerate().all(|(i, &row)| row == i)
+            && columns.iter().enumerate().all(|(i, &(t, _))| t == i);
+        let h_t = if whole {
+            faer::MatRef::from_column_major_slice(h.as_slice(), m, columns.len())
+                .transpose()
+                .to_owned()
+        } else {
+            Mat::<f64>::from_fn(columns.len(), m, |c, q| h[(rows[q], columns[c].0)])
+        };
         let mut pht = Mat::<f64>::zeros(n, m);
         faer::linalg::matmul::matmul(
             pht.as_mut(),
@@ -498,7 +510,11 @@ impl StateCovariance {
         );
         // S = H C H^T + R, symmetrized, and its lower Cholesky factor L.
         let pht_touched = Mat::<f64>::from_fn(columns.len(), m, |c, q| pht[(columns[c].1, q)]);
-        let mut s = Mat::<f64>::from_fn(m, m, |a, b| r[(rows[a], rows[b])]);
+        let mut s = if whole {
+            faer::MatRef::from_column_major_slice(r.as_slice(), m, m).to_owned()
+        } else {
+            Mat::<f64>::from_fn(m, m, |a, b| r[(rows[a], rows[b])])
+        };
         faer::linalg::matmul::matmul(
             s.as_mut(),
             Accum::Add,

@@ -39,7 +39,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::DMatrix;
 use slam_core::{
-    Estimator, FeatureId, FeatureMap, MotionModel, Observation, Result, RobotPose, RowOwner,
+    Estimator, FeatureId, FeatureMap, MotionModel, Observation, Result, RobotPose, RowOwner, Skips,
     UpdateReport,
 };
 
@@ -218,6 +218,8 @@ struct Snapshot<P> {
     /// The best particle's map with its duplicates merged (`merge_duplicates`); `None`:
     /// the particle's own.
     merged: Option<LandmarkMap<P>>,
+    /// What the merge left out (pairs it could not test), reported with the next step.
+    skipped: Skips,
 }
 
 /// FastSLAM 1.0 over robot poses of type `P` (see the module documentation).
@@ -286,6 +288,7 @@ impl<P: RobotPose> FastSlam<P> {
 
     fn snapshot(&self) -> &Snapshot<P> {
         self.snapshot.get_or_init(|| {
+            let mut skipped = Skips::default();
             let merged = self.params.merge_duplicates.then(|| {
                 let mut merged = self.set.best_particle().map.clone();
                 let gates = &self.gates;
@@ -295,7 +298,7 @@ impl<P: RobotPose> FastSlam<P> {
                     tolerance: self.params.merge_tolerance,
                     gate: &|dof| gates.gate(probability, dof),
                 };
-                merged.merge_duplicates(&settings, &mut slam_core::Skips::default());
+                merged.merge_duplicates(&settings, &mut skipped);
                 merged
             });
             let landmarks = match &merged {
@@ -312,7 +315,12 @@ impl<P: RobotPose> FastSlam<P> {
                     slots.push(slot);
                 }
             }
-            Snapshot { map, slots, merged }
+            Snapshot {
+                map,
+                slots,
+                merged,
+                skipped,
+            }
         })
     }
 
@@ -391,10 +399,12 @@ impl<P: RobotPose> Estimator<P> for FastSlam<P> {
             reports.push(report);
         }
         self.set.weigh(likelihoods);
-        let report = reports.swap_remove(self.set.best);
+        let mut report = reports.swap_remove(self.set.best);
         self.set.update_mean();
         self.set.resample(self.params.resample_threshold);
-        self.snapshot = OnceLock::new();
+        if let Some(snapshot) = self.snapshot.take() {
+            report.skipped.merge(&snapshot.skipped);
+        }
         Ok(report)
     }
 

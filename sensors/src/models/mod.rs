@@ -15,7 +15,7 @@ pub use range_bearing::RangeBearing;
 pub use wall::{BEYOND_ESTIMATED_END, MAX_GAP, WallObservation};
 
 use slam_core::Pose3;
-use slam_core::nalgebra::{Matrix2, Vector2};
+use slam_core::nalgebra::{DMatrix, Dim, Matrix, Matrix2, RawStorage, Vector2};
 
 /// The map-frame vertical line through a point of a (possibly tilted) scan plane: the
 /// inverse of paper eq. 34, `x_m = M (u, v) + t_xy` with `M` the top-left 2x2 block of the
@@ -26,6 +26,13 @@ pub fn scan_plane_to_world(world_from_sensor: &Pose3, in_plane: &Vector2<f64>) -
         .fixed_view::<2, 2>(0, 0)
         .into_owned();
     m * in_plane + world_from_sensor.translation.xy()
+}
+
+/// A small stack matrix as a dynamic one (what a model's own linearization returns).
+pub(crate) fn dynamic<R: Dim, C: Dim, S: RawStorage<f64, R, C>>(
+    matrix: &Matrix<f64, R, C, S>,
+) -> DMatrix<f64> {
+    DMatrix::from_fn(matrix.nrows(), matrix.ncols(), |i, j| matrix[(i, j)])
 }
 
 /// Checks that standard deviations are finite and positive.

@@ -8,7 +8,7 @@ use slam_core::{
 };
 use slam_features::Pole;
 
-use super::{check_sigmas, scan_plane_to_world};
+use super::{check_sigmas, dynamic, scan_plane_to_world};
 
 /// Range and bearing to a [`Pole`]'s centre in the scan plane, and its radius.
 ///
@@ -95,11 +95,6 @@ fn own_columns(pole: &Pole, d_eta_d_xf: &Matrix3<f64>) -> DMatrix<f64> {
     } else {
         DMatrix::zeros(3, 0)
     }
-}
-
-/// A 3 x 3 stack matrix as a dynamic one.
-fn dynamic(matrix: &Matrix3<f64>) -> DMatrix<f64> {
-    DMatrix::from_column_slice(3, 3, matrix.as_slice())
 }
 
 /// [`Innovation`]'s fields for a pole, on the stack.

@@ -1,6 +1,6 @@
 //! Range and bearing from a planar sensor to a point landmark (the classic EKF-SLAM case).
 
-use slam_core::nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Vector2, Vector3};
+use slam_core::nalgebra::{DVector, Matrix2, Matrix2x3, Vector2, Vector3};
 use slam_core::{
     CoordBlock, Coordinates, Error, Feature, Innovation, LinearizedMeasurement, MapToSensor,
     MeasurementModel, OwnLinearization, Pose3, Result, SensorFrame, chain_covariance,
@@ -8,7 +8,7 @@ use slam_core::{
 };
 use slam_features::Point;
 
-use super::check_sigmas;
+use super::{check_sigmas, dynamic};
 
 /// Range and bearing to a [`Point`] in the plane of a 2-D sensor: the "2-D use of the 3-D
 /// point". The prediction uses the point's x and y in the sensor frame (its height does not
@@ -84,16 +84,6 @@ impl RangeBearing {
             ),
         })
     }
-}
-
-/// A small stack matrix as a dynamic one.
-fn dynamic<R: slam_core::nalgebra::Dim, C: slam_core::nalgebra::Dim, S>(
-    matrix: &slam_core::nalgebra::Matrix<f64, R, C, S>,
-) -> DMatrix<f64>
-where
-    S: slam_core::nalgebra::RawStorage<f64, R, C>,
-{
-    DMatrix::from_fn(matrix.nrows(), matrix.ncols(), |i, j| matrix[(i, j)])
 }
 
 impl MeasurementModel for RangeBearing {

@@ -32,6 +32,8 @@ pub mod fastslam;
 pub mod ipslam;
 pub mod lifecycle;
 mod particles;
+#[cfg(test)]
+mod test_support;
 pub use particles::MAX_PARTICLES;
 
 pub use association::{Association, AssociationSettings};

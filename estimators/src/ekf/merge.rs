@@ -281,33 +281,12 @@ impl<P: RobotPose> Ekf<P> {
 
 #[cfg(test)]
 mod tests {
-    use slam_core::nalgebra::{DMatrix, Matrix2, Vector2};
+    use slam_core::nalgebra::{DMatrix, Matrix2};
     use slam_core::{Estimator, Observation, Pose2, Pose3};
-    use slam_sensors::models::{PoleObservation, WallObservation};
+    use slam_sensors::models::PoleObservation;
 
     use super::super::{Decision, Ekf, EkfParams};
-
-    /// A wall seen from the origin along `y = offset`, from `x = a` to `x = b`.
-    fn sighting(offset: f64, a: f64, b: f64) -> Observation {
-        sighting_with(offset, a, b, Matrix2::new(1e-4, 0.0, 0.0, 4e-4))
-    }
-
-    /// [`sighting`] with the segment's covariance `covariance`.
-    fn sighting_with(offset: f64, a: f64, b: f64, covariance: Matrix2<f64>) -> Observation {
-        let measurement = WallObservation::from_segment(
-            Vector2::new(a, offset),
-            Vector2::new(b, offset),
-            covariance,
-            [false, false],
-            [0.05, 0.05],
-        )
-        .unwrap();
-        Observation {
-            robot_from_sensor: Pose3::identity(),
-            measurement: Box::new(measurement),
-            landmark_id: None,
-        }
-    }
+    use crate::test_support::{wall_sighting as sighting, wall_sighting_with as sighting_with};
 
     /// Two features started from two sightings in one step, with merging on or off.
     fn two_walls(merge: bool, sightings: [Observation; 2]) -> Ekf<Pose2> {

@@ -12,6 +12,7 @@ use slam_sensors::odometry::{Integration, Unicycle};
 
 use super::*;
 use crate::particles::{normalized, systematic_resample};
+use crate::test_support::wall_sighting;
 
 const SIGMA_RANGE: f64 = 0.05;
 const SIGMA_BEARING: f64 = 0.02;
@@ -321,24 +322,6 @@ fn bad_parameters_are_errors() {
         },
     ] {
         assert!(FastSlam::new(Pose2::identity(), DMatrix::zeros(3, 3), params).is_err());
-    }
-}
-
-/// A wall seen from the origin along `y = offset`, from `x = a` to `x = b`.
-fn wall_sighting(offset: f64, a: f64, b: f64) -> Observation {
-    use slam_core::nalgebra::{Matrix2, Vector2};
-    let measurement = slam_sensors::models::WallObservation::from_segment(
-        Vector2::new(a, offset),
-        Vector2::new(b, offset),
-        Matrix2::new(1e-4, 0.0, 0.0, 4e-4),
-        [false, false],
-        [0.05, 0.05],
-    )
-    .unwrap();
-    Observation {
-        robot_from_sensor: Pose3::identity(),
-        measurement: Box::new(measurement),
-        landmark_id: None,
     }
 }
 

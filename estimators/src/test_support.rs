@@ -1,0 +1,32 @@
+//! Observations the unit tests of several estimators build alike.
+
+use slam_core::nalgebra::{Matrix2, Vector2};
+use slam_core::{Observation, Pose3};
+use slam_sensors::models::WallObservation;
+
+/// A wall seen from the origin along `y = offset`, from `x = a` to `x = b`.
+pub(crate) fn wall_sighting(offset: f64, a: f64, b: f64) -> Observation {
+    wall_sighting_with(offset, a, b, Matrix2::new(1e-4, 0.0, 0.0, 4e-4))
+}
+
+/// [`wall_sighting`] with the segment's covariance `covariance`.
+pub(crate) fn wall_sighting_with(
+    offset: f64,
+    a: f64,
+    b: f64,
+    covariance: Matrix2<f64>,
+) -> Observation {
+    let measurement = WallObservation::from_segment(
+        Vector2::new(a, offset),
+        Vector2::new(b, offset),
+        covariance,
+        [false, false],
+        [0.05, 0.05],
+    )
+    .unwrap();
+    Observation {
+        robot_from_sensor: Pose3::identity(),
+        measurement: Box::new(measurement),
+        landmark_id: None,
+    }
+}

@@ -259,6 +259,73 @@ impl FeatureMap {
         Ok(shared_id)
     }
 
+    /// Makes block `block` of feature `id` a member of the existing shared block `shared` (a
+    /// third wall reaching a corner, or a merged duplicate's corner passing to the wall
+    /// kept): the feature re-parameterizes its own rows ([`Feature::share_block`], eq. 33)
+    /// and takes the shared value. All or nothing: on error the map is unchanged.
+    pub fn join_shared(
+        &mut self,
+        id: FeatureId,
+        block: usize,
+        shared: SharedBlockId,
+    ) -> Result<()> {
+        let value = self.shared_block(shared)?.value;
+        let feature = self.get(id)?;
+        let current = feature
+            .coordinates()
+            .block(block)
+            .ok_or_else(|| Error::Sharing(format!("feature {} has no block {block}", id.0)))?;
+        if current.kind() != value.kind() {
+            return Err(Error::BlockKindMismatch {
+                index: block,
+                expected: current.kind(),
+                got: value.kind(),
+            });
+        }
+        if self.links[id.0][block].is_some() {
+            return Err(Error::Sharing(format!(
+                "block {block} of feature {} is already shared",
+                id.0
+            )));
+        }
+        let mut candidate = dyn_clone::clone_box(feature);
+        candidate.set_block(block, value)?;
+        candidate.share_block(block)?;
+        self.features[id.0] = Some(candidate);
+        self.links[id.0][block] = Some(shared);
+        if let Some(Some(entry)) = self.shared.get_mut(shared.0) {
+            entry.members.push((id, block));
+        }
+        Ok(())
+    }
+
+    /// Removes a feature together with its memberships of shared blocks (a merged duplicate
+    /// whose corners have passed to the feature kept). Every shared block it holds must keep
+    /// another member: a block's rows stay in the estimator. On error the map is unchanged.
+    pub fn remove_from_shared(&mut self, id: FeatureId) -> Result<Box<dyn Feature>> {
+        self.get(id)?;
+        for shared in self.links[id.0].iter().flatten() {
+            let block = self.shared_block(*shared)?;
+            if !block.members.iter().any(|(member, _)| *member != id) {
+                return Err(Error::Sharing(format!(
+                    "feature {} is the last member of shared block {}",
+                    id.0, shared.0
+                )));
+            }
+        }
+        for shared in std::mem::take(&mut self.links[id.0]).into_iter().flatten() {
+            if let Some(Some(entry)) = self.shared.get_mut(shared.0) {
+                entry.members.retain(|(member, _)| *member != id);
+            }
+        }
+        let feature = self.features[id.0].take().ok_or(Error::UnknownId {
+            what: "feature",
+            id: id.0,
+        })?;
+        self.links[id.0] = vec![None; feature.coordinates().num_blocks()];
+        Ok(feature)
+    }
+
     /// Grows feature `id` by the named subspace ([`Feature::activate`]).
     pub fn activate(&mut self, id: FeatureId, subspace: &str) -> Result<Growth> {
         self.get(id)?;

@@ -99,30 +99,101 @@ impl<P: RobotPose> Ekf<P> {
         h.view_mut((0, 0), e_f.shape()).copy_from(&e_f);
         h.view_mut((0, nf), e_g.shape()).copy_from(&(-&e_g));
         let indices: Vec<usize> = pair.rows_f.iter().chain(&pair.rows_g).copied().collect();
-        let difference = &value_f - &value_g;
-        let c = self.cov.gather(&indices, &indices);
+        self.constrain_if_same(&indices, h, &(&value_f - &value_g))
+    }
+
+    /// Gates the difference of two blocks (`h` its Jacobian on the state rows `indices`) and,
+    /// if they are the same point, makes it zero by a tight update; all or nothing (a join
+    /// that would turn a feature around is not made). Returns whether it was applied.
+    fn constrain_if_same(
+        &mut self,
+        indices: &[usize],
+        mut h: DMatrix<f64>,
+        difference: &DVector<f64>,
+    ) -> Result<bool> {
+        let dim = difference.len();
+        let c = self.cov.gather(indices, indices);
         let sigma = &h * c * h.transpose();
         let Some(sigma_inv) = sigma.try_inverse() else {
             self.skips.count("corners: singular difference covariance");
             return Ok(false);
         };
-        let d2 = (difference.transpose() * sigma_inv * &difference)[(0, 0)];
+        let d2 = (difference.transpose() * sigma_inv * difference)[(0, 0)];
         let gate = self.gates.gate(self.params.gate_probability, dim)?;
         if d2.is_nan() || d2 > gate {
             return Ok(false);
         }
         let noise = DMatrix::identity(dim, dim) * JOIN_CONSTRAINT_VARIANCE;
         if self.params.observability_constraint {
-            h = project_out(&h, &self.cov.generators(&indices));
+            h = project_out(&h, &self.cov.generators(indices));
         }
-        let prepared = self.cov.prepare_update(&indices, &h, &noise, &difference)?;
-        // All or nothing: a join that would turn a feature around is not made.
+        let prepared = self.cov.prepare_update(indices, &h, &noise, difference)?;
         if self.apply_state_change(&prepared.dx).is_err() {
             self.skips
                 .count("corners: the join would move a feature where it cannot go");
             return Ok(false);
         }
         self.cov.commit(prepared);
+        Ok(true)
+    }
+
+    /// Joins free block `k` of feature `id` to the existing shared block `shared` if they
+    /// are statistically the same point (a duplicate's corner passing to the wall kept by a
+    /// merge): a tight constraint update, then the feature shares the block and its own rows
+    /// are re-parameterized (eq. 33); the shared block's rows stay as they are. Returns
+    /// whether it was joined.
+    pub(super) fn join_existing(
+        &mut self,
+        id: FeatureId,
+        k: usize,
+        shared: SharedBlockId,
+    ) -> Result<bool> {
+        let Some(rows_f) = self.rows.get(&RowOwner::Feature(id)).cloned() else {
+            return Ok(false);
+        };
+        let rows_s = self
+            .rows
+            .get(&RowOwner::Shared(shared))
+            .cloned()
+            .ok_or_else(|| Error::Invariant(format!("shared block {} has no rows", shared.0)))?;
+        let (value_f, e_f) = self.block_and_dual(id, k)?;
+        let corner = self.map.shared_block(shared)?.value;
+        let mut candidate = slam_core::dyn_clone::clone_box(self.map.get(id)?);
+        if candidate.set_block(k, corner).is_err() || candidate.share_block(k).is_err() {
+            return Ok(false);
+        }
+        let (nf, dim) = (rows_f.len(), value_f.len());
+        let mut h = DMatrix::zeros(dim, nf + dim);
+        h.view_mut((0, 0), e_f.shape()).copy_from(&e_f);
+        h.view_mut((0, nf), (dim, dim))
+            .copy_from(&(-DMatrix::<f64>::identity(dim, dim)));
+        let indices: Vec<usize> = rows_f.iter().chain(&rows_s).copied().collect();
+        let difference = value_f - DVector::from_column_slice(corner.as_slice());
+        if !self.constrain_if_same(&indices, h, &difference)? {
+            return Ok(false);
+        }
+        let dual_old = self.map.get(id)?.dual()?;
+        self.map.join_shared(id, k, shared)?;
+        let t = self.map.get(id)?.projection()? * dual_old;
+        let before = self.cov.dim();
+        let remap = self.cov.reparameterize(&rows_f, &t)?;
+        self.rows.remove(&RowOwner::Feature(id));
+        for rows in self.rows.values_mut() {
+            for row in rows.iter_mut() {
+                *row = remap[*row]
+                    .ok_or_else(|| Error::Invariant("a kept state row was dropped".into()))?;
+            }
+        }
+        if t.nrows() > 0 {
+            let rows = (0..t.nrows())
+                .map(|i| {
+                    remap[before + i].ok_or_else(|| {
+                        Error::Invariant("a row appended by a corner join was lost".into())
+                    })
+                })
+                .collect::<Result<Vec<usize>>>()?;
+            self.rows.insert(RowOwner::Feature(id), rows);
+        }
         Ok(true)
     }
 

@@ -12,15 +12,32 @@
 //! marginalized out (deleted from the state): every correlation of the kept feature, with the
 //! pose and with the rest of the map, stays as the constraint left it.
 //!
-//! The feature kept is the one seen more often; a feature holding a shared block (a corner)
-//! is never the one removed, and two such features are not merged.
+//! The feature kept is the one seen more often, unless only the other holds shared blocks
+//! (corners): then that one is kept. When both hold corners (a wall mapped twice round a
+//! loop, each copy joined to the corner at its own end), the removed one's corners pass to
+//! the kept one: each joins the kept feature's free, estimated end nearest to it, by the
+//! tight constraint and re-parameterization of a corner join, and the removed feature leaves
+//! the corner's members. Where the kept feature has no such end the pair stays two.
 
 use slam_core::nalgebra::{DMatrix, DVector};
-use slam_core::{Error, FeatureId, Result, RobotPose, RowOwner, Shape};
+use slam_core::{Error, FeatureId, Result, RobotPose, RowOwner, Shape, SharedBlockId};
 
 use super::Ekf;
 use super::jacobians::project_out;
+use crate::lifecycle::corners::heir_block;
 use crate::lifecycle::{MERGE_ANGLE, MERGE_CONSTRAINT_VARIANCE};
+
+/// For each shared block a removed duplicate holds, the block of the kept feature that joins
+/// it (`None`: the kept feature holds that shared block already).
+type Handover = Vec<(SharedBlockId, Option<usize>)>;
+
+/// How two features found to be one are merged.
+struct MergePlan {
+    keep: FeatureId,
+    drop: FeatureId,
+    /// How `drop`'s shared blocks pass to `keep`.
+    handover: Handover,
+}
 
 impl<P: RobotPose> Ekf<P> {
     /// Merges feature `id` with every confirmed feature that is the same one (see the module
@@ -115,7 +132,12 @@ impl<P: RobotPose> Ekf<P> {
 
     /// Merges `a` and `b` if they pass the test; returns whether they were merged.
     fn try_merge(&mut self, a: FeatureId, b: FeatureId) -> Result<bool> {
-        let Some((keep, drop)) = self.merge_roles(a, b)? else {
+        let Some(MergePlan {
+            keep,
+            drop,
+            handover,
+        }) = self.merge_plan(a, b)?
+        else {
             return Ok(false);
         };
         let Some(coincidence) = self.map.get(keep)?.coincidence(self.map.get(drop)?)? else {
@@ -146,20 +168,29 @@ impl<P: RobotPose> Ekf<P> {
         if let Some(extension) = self.map.get(keep)?.absorbed(self.map.get(drop)?)? {
             self.apply_extension(keep, extension)?;
         }
+        for (shared, block) in handover {
+            if let Some(k) = block
+                && !self.join_existing(keep, k, shared)?
+            {
+                self.skips
+                    .count("merge: a corner of the duplicate could not pass to the wall kept");
+                return Ok(false);
+            }
+        }
         let sightings = self.tracks.get(&drop).map_or(0, |t| t.sightings);
         if let Some(track) = self.tracks.get_mut(&keep) {
             track.sightings += sightings;
         }
-        self.remove_feature(drop)?;
+        self.drop_feature(drop)?;
         self.features_merged += 1;
         Ok(true)
     }
 
-    /// Which of two features is kept and which removed: `None` when they cannot be merged
-    /// (known landmarks, or both holding shared blocks).
-    fn merge_roles(&self, a: FeatureId, b: FeatureId) -> Result<Option<(FeatureId, FeatureId)>> {
-        let holds_shared =
-            |id: FeatureId| -> Result<bool> { Ok(self.map.links(id)?.iter().any(Option::is_some)) };
+    /// Which of two features is kept and which removed, and how the removed one's shared
+    /// blocks pass to the kept one: `None` when they cannot be merged (known landmarks, or
+    /// both holding corners and neither able to take the other's). A merge that removes no
+    /// corner is preferred, then the feature seen more often is kept.
+    fn merge_plan(&self, a: FeatureId, b: FeatureId) -> Result<Option<MergePlan>> {
         let track = |id: FeatureId| self.tracks.get(&id);
         if [a, b]
             .iter()
@@ -168,16 +199,55 @@ impl<P: RobotPose> Ekf<P> {
             return Ok(None);
         }
         let sightings = |id: FeatureId| track(id).map_or(0, |t| t.sightings);
-        let (keep, drop) = if sightings(b) > sightings(a) {
+        let (first, second) = if sightings(b) > sightings(a) {
             (b, a)
         } else {
             (a, b)
         };
-        Ok(match (holds_shared(keep)?, holds_shared(drop)?) {
-            (_, false) => Some((keep, drop)),
-            (false, true) => Some((drop, keep)),
-            (true, true) => None,
-        })
+        let holds_shared =
+            |id: FeatureId| -> Result<bool> { Ok(self.map.links(id)?.iter().any(Option::is_some)) };
+        let mut orders = [(first, second), (second, first)];
+        if holds_shared(first)? && !holds_shared(second)? {
+            orders.swap(0, 1);
+        }
+        for (keep, drop) in orders {
+            if let Some(handover) = self.handover(keep, drop)? {
+                return Ok(Some(MergePlan {
+                    keep,
+                    drop,
+                    handover,
+                }));
+            }
+        }
+        Ok(None)
+    }
+
+    /// How each shared block of `drop` passes to `keep`, or `None` when one cannot.
+    fn handover(&self, keep: FeatureId, drop: FeatureId) -> Result<Option<Handover>> {
+        let held = self.map.links(keep)?;
+        let mut handover = Vec::new();
+        let mut taken = Vec::new();
+        for shared in self.map.links(drop)?.iter().flatten() {
+            if held.contains(&Some(*shared)) {
+                handover.push((*shared, None));
+                continue;
+            }
+            let corner = self.map.shared_block(*shared)?.value;
+            match heir_block(
+                &self.map,
+                keep,
+                &corner,
+                &taken,
+                self.params.corner_distance,
+            )? {
+                Some(k) => {
+                    taken.push(k);
+                    handover.push((*shared, Some(k)));
+                }
+                None => return Ok(None),
+            }
+        }
+        Ok(Some(handover))
     }
 
     /// A Jacobian with respect to feature `id`'s coordinates as columns on its state rows:
@@ -255,6 +325,14 @@ impl<P: RobotPose> Ekf<P> {
                 id.0
             )));
         }
+        self.drop_feature(id)
+    }
+
+    /// Removes a confirmed feature as [`Self::remove_feature`] does, and takes it out of the
+    /// shared blocks it holds (each must keep another member: a merged duplicate whose
+    /// corners have passed to the feature kept).
+    fn drop_feature(&mut self, id: FeatureId) -> Result<Vec<Option<usize>>> {
+        self.map.remove_from_shared(id)?;
         let mut remap: Vec<Option<usize>> = (0..self.cov.dim()).map(Some).collect();
         if let Some(rows) = self.rows.remove(&RowOwner::Feature(id)) {
             let mut dropped = vec![false; self.cov.dim()];
@@ -269,7 +347,6 @@ impl<P: RobotPose> Ekf<P> {
                 }
             }
         }
-        self.map.remove(id)?;
         if let Some(track) = self.tracks.remove(&id)
             && let Some(landmark) = track.landmark_id
         {
@@ -342,6 +419,116 @@ mod tests {
             robot_from_sensor: Pose3::identity(),
             measurement: Box::new(measurement),
             landmark_id: None,
+        }
+    }
+
+    /// A wall seen from the origin from `a` to `b`, with real ends as `real` says (a corner
+    /// can form at a real end).
+    fn wall(a: [f64; 2], b: [f64; 2], real: [bool; 2]) -> Observation {
+        let measurement = slam_sensors::models::WallObservation::from_segment(
+            a.into(),
+            b.into(),
+            Matrix2::new(1e-4, 0.0, 0.0, 4e-4),
+            real,
+            [0.05, 0.05],
+        )
+        .unwrap();
+        Observation {
+            robot_from_sensor: Pose3::identity(),
+            measurement: Box::new(measurement),
+            landmark_id: None,
+        }
+    }
+
+    /// Starts features from `walls()` and sees them again `times` times, each paired with
+    /// the feature it started; returns those features.
+    fn map_walls(
+        ekf: &mut Ekf<Pose2>,
+        walls: impl Fn() -> Vec<Observation>,
+        times: usize,
+    ) -> Vec<slam_core::FeatureId> {
+        let before: Vec<_> = ekf.map().iter().map(|(id, _)| id).collect();
+        let first = walls();
+        let new = first.iter().map(|_| Decision::New).collect();
+        ekf.apply_decisions(&first, new).unwrap();
+        let ids: Vec<_> = ekf
+            .map()
+            .iter()
+            .map(|(id, _)| id)
+            .filter(|id| !before.contains(id))
+            .collect();
+        for _ in 0..times {
+            let seen = walls();
+            let pose = ekf.pose;
+            ekf.frames.prepare(&pose, &seen);
+            let decisions = seen
+                .iter()
+                .zip(&ids)
+                .map(|(wall, id)| Decision::Pair(ekf.linearize(wall, *id).unwrap()))
+                .collect();
+            ekf.apply_decisions(&seen, decisions).unwrap();
+        }
+        ids
+    }
+
+    /// A wall mapped twice round a loop, each copy joined to the corner at its own end: wall
+    /// B (x 0.5-3 on y = 2) holds the corner with D at (3, 2), then wall A (x -1-3) is mapped
+    /// with C, joined to it at (-1, 2), and ends free at (3, 2). Merging passes B's corner to
+    /// A: three walls remain, A holding both corners (no own rows left), the map's shared
+    /// blocks consistent and the covariance symmetric positive semi-definite. With A's end at
+    /// (3, 2) not estimated (never a real end) the corner cannot pass and both stay.
+    #[test]
+    fn duplicates_holding_corners_at_their_own_ends_are_merged() {
+        for a_end_real in [true, false] {
+            let params = EkfParams {
+                confirm_after: 1,
+                merge_duplicates: false,
+                ..EkfParams::default()
+            };
+            let mut ekf =
+                Ekf::new(Pose2::identity(), DMatrix::identity(3, 3) * 1e-4, params).unwrap();
+            let both = [true, true];
+            let bd = map_walls(
+                &mut ekf,
+                || {
+                    vec![
+                        wall([0.5, 2.0], [3.0, 2.0], both),
+                        wall([3.0, 2.0], [3.0, 4.0], both),
+                    ]
+                },
+                2,
+            );
+            let ac = map_walls(
+                &mut ekf,
+                || {
+                    vec![
+                        wall([-1.0, 2.0], [3.0, 2.0], [true, a_end_real]),
+                        wall([-1.0, 4.0], [-1.0, 2.0], both),
+                    ]
+                },
+                2,
+            );
+            assert_eq!(ekf.corners_joined(), 2);
+            assert_eq!(ekf.map().len(), 4);
+            let links = |ekf: &Ekf<Pose2>, id| ekf.map().links(id).unwrap().to_vec();
+            let (wall_a, wall_b) = (ac[0], bd[0]);
+            assert_eq!(links(&ekf, wall_a).iter().flatten().count(), 1);
+            assert_eq!(links(&ekf, wall_b).iter().flatten().count(), 1);
+            let dim = ekf.state_dim();
+            ekf.params.merge_duplicates = true;
+            ekf.merge_duplicates_of(wall_a).unwrap();
+            ekf.map().check_consistency().unwrap();
+            assert!(is_symmetric_psd(&ekf.covariance()));
+            if !a_end_real {
+                assert_eq!((ekf.features_merged(), ekf.map().len()), (0, 4));
+                continue;
+            }
+            assert_eq!((ekf.features_merged(), ekf.map().len()), (1, 3));
+            assert!(ekf.map().get(wall_b).is_err(), "B is the one removed");
+            assert_eq!(ekf.map().get(wall_a).unwrap().mspace_dim(), 0);
+            assert!(links(&ekf, wall_a).iter().all(Option::is_some));
+            // A's own rows (pivot and end) and B's are gone; the two corners stay.
+            assert_eq!(ekf.state_dim(), dim - 4);
         }
     }
 

@@ -67,6 +67,32 @@ pub(crate) fn corner_partners(
     Ok(partners)
 }
 
+/// The block of feature `id` that can take over a shared block of value `corner` from a
+/// duplicate merged into it: its free (not shared, not in `taken`), fully estimated,
+/// shareable block of the same kind nearest to `corner`, if within `corner_distance`.
+pub(crate) fn heir_block(
+    map: &FeatureMap,
+    id: FeatureId,
+    corner: &CoordBlock,
+    taken: &[usize],
+    corner_distance: f64,
+) -> Result<Option<usize>> {
+    let feature = map.get(id)?;
+    let links = map.links(id)?;
+    let nearest = feature
+        .shareable_blocks()
+        .into_iter()
+        .filter(|k| links[*k].is_none() && !taken.contains(k))
+        .map(|k| (k, feature.coordinates().blocks()[k]))
+        .filter(|(_, block)| block.kind() == corner.kind())
+        .map(|(k, block)| (k, distance(&block, corner)))
+        .min_by(|a, b| a.1.total_cmp(&b.1));
+    match nearest {
+        Some((k, d)) if d <= corner_distance && block_estimated(feature, k)? => Ok(Some(k)),
+        _ => Ok(None),
+    }
+}
+
 /// Euclidean distance between two blocks of the same kind.
 fn distance(a: &CoordBlock, b: &CoordBlock) -> f64 {
     a.as_slice()

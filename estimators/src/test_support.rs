@@ -16,14 +16,23 @@ pub(crate) fn wall_sighting_with(
     b: f64,
     covariance: Matrix2<f64>,
 ) -> Observation {
-    let measurement = WallObservation::from_segment(
+    segment_sighting(
         Vector2::new(a, offset),
         Vector2::new(b, offset),
         covariance,
         [false, false],
-        [0.05, 0.05],
     )
-    .unwrap();
+}
+
+/// A wall seen from the origin from `a` to `b` with the segment's covariance `covariance`,
+/// its ends real (where a corner can form) as `real` says.
+pub(crate) fn segment_sighting(
+    a: Vector2<f64>,
+    b: Vector2<f64>,
+    covariance: Matrix2<f64>,
+    real: [bool; 2],
+) -> Observation {
+    let measurement = WallObservation::from_segment(a, b, covariance, real, [0.05, 0.05]).unwrap();
     Observation {
         robot_from_sensor: Pose3::identity(),
         measurement: Box::new(measurement),

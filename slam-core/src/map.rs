@@ -224,28 +224,7 @@ impl FeatureMap {
             if members[..i].iter().any(|&(other, _)| other == id) {
                 return Err(Error::Sharing(format!("feature {} listed twice", id.0)));
             }
-            let feature = self.get(id)?;
-            let current = feature
-                .coordinates()
-                .block(block)
-                .ok_or_else(|| Error::Sharing(format!("feature {} has no block {block}", id.0)))?;
-            if current.kind() != value.kind() {
-                return Err(Error::BlockKindMismatch {
-                    index: block,
-                    expected: current.kind(),
-                    got: value.kind(),
-                });
-            }
-            if self.links[id.0][block].is_some() {
-                return Err(Error::Sharing(format!(
-                    "block {block} of feature {} is already shared",
-                    id.0
-                )));
-            }
-            let mut candidate = dyn_clone::clone_box(feature);
-            candidate.set_block(block, value)?;
-            candidate.share_block(block)?;
-            updated.push(candidate);
+            updated.push(self.sharing(id, block, value)?);
         }
         let shared_id = SharedBlockId(self.shared.len());
         for (&(id, block), feature) in members.iter().zip(updated) {
@@ -259,17 +238,9 @@ impl FeatureMap {
         Ok(shared_id)
     }
 
-    /// Makes block `block` of feature `id` a member of the existing shared block `shared` (a
-    /// third wall reaching a corner, or a merged duplicate's corner passing to the wall
-    /// kept): the feature re-parameterizes its own rows ([`Feature::share_block`], eq. 33)
-    /// and takes the shared value. All or nothing: on error the map is unchanged.
-    pub fn join_shared(
-        &mut self,
-        id: FeatureId,
-        block: usize,
-        shared: SharedBlockId,
-    ) -> Result<()> {
-        let value = self.shared_block(shared)?.value;
+    /// Feature `id` as it would be with its free block `block` shared at `value` (the
+    /// checks and the re-parameterization of [`Self::share`] and [`Self::join_shared`]).
+    fn sharing(&self, id: FeatureId, block: usize, value: CoordBlock) -> Result<Box<dyn Feature>> {
         let feature = self.get(id)?;
         let current = feature
             .coordinates()
@@ -291,6 +262,21 @@ impl FeatureMap {
         let mut candidate = dyn_clone::clone_box(feature);
         candidate.set_block(block, value)?;
         candidate.share_block(block)?;
+        Ok(candidate)
+    }
+
+    /// Makes block `block` of feature `id` a member of the existing shared block `shared` (a
+    /// third wall reaching a corner, or a merged duplicate's corner passing to the wall
+    /// kept): the feature re-parameterizes its own rows ([`Feature::share_block`], eq. 33)
+    /// and takes the shared value. All or nothing: on error the map is unchanged.
+    pub fn join_shared(
+        &mut self,
+        id: FeatureId,
+        block: usize,
+        shared: SharedBlockId,
+    ) -> Result<()> {
+        let value = self.shared_block(shared)?.value;
+        let candidate = self.sharing(id, block, value)?;
         self.features[id.0] = Some(candidate);
         self.links[id.0][block] = Some(shared);
         if let Some(Some(entry)) = self.shared.get_mut(shared.0) {

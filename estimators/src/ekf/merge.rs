@@ -363,7 +363,9 @@ mod tests {
     use slam_sensors::models::PoleObservation;
 
     use super::super::{Decision, Ekf, EkfParams};
-    use crate::test_support::{wall_sighting as sighting, wall_sighting_with as sighting_with};
+    use crate::test_support::{
+        segment_sighting, wall_sighting as sighting, wall_sighting_with as sighting_with,
+    };
 
     /// Two features started from two sightings in one step, with merging on or off.
     fn two_walls(merge: bool, sightings: [Observation; 2]) -> Ekf<Pose2> {
@@ -425,19 +427,7 @@ mod tests {
     /// A wall seen from the origin from `a` to `b`, with real ends as `real` says (a corner
     /// can form at a real end).
     fn wall(a: [f64; 2], b: [f64; 2], real: [bool; 2]) -> Observation {
-        let measurement = slam_sensors::models::WallObservation::from_segment(
-            a.into(),
-            b.into(),
-            Matrix2::new(1e-4, 0.0, 0.0, 4e-4),
-            real,
-            [0.05, 0.05],
-        )
-        .unwrap();
-        Observation {
-            robot_from_sensor: Pose3::identity(),
-            measurement: Box::new(measurement),
-            landmark_id: None,
-        }
+        segment_sighting(a.into(), b.into(), Matrix2::new(1e-4, 0.0, 0.0, 4e-4), real)
     }
 
     /// Starts features from `walls()` and sees them again `times` times, each paired with

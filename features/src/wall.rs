@@ -642,6 +642,48 @@ mod tests {
         Wall::new(Vector2::new(1.0, 1.0), Vector2::new(5.0, 1.0)).unwrap()
     }
 
+    /// A corner held by two walls takes a third member ([`FeatureMap::join_shared`]: a merged
+    /// duplicate's corner passing to the wall kept), and a removed member leaves it
+    /// ([`FeatureMap::remove_from_shared`]); the map stays consistent (its serialized form
+    /// is validated on reading), and the last member cannot leave.
+    #[test]
+    fn a_corner_takes_a_third_wall_and_loses_a_removed_one() {
+        use slam_core::FeatureMap;
+        let v = Vector2::new;
+        let mut map = FeatureMap::new();
+        let a = map
+            .insert(Box::new(Wall::new(v(0.0, 0.0), v(2.0, 0.0)).unwrap()))
+            .unwrap();
+        let b = map
+            .insert(Box::new(Wall::new(v(2.0, 0.0), v(2.0, 2.0)).unwrap()))
+            .unwrap();
+        let c = map
+            .insert(Box::new(Wall::new(v(4.0, 0.02), v(2.02, 0.0)).unwrap()))
+            .unwrap();
+        let corner = map
+            .share(&[(a, 1), (b, 0)], CoordBlock::Point2(v(2.0, 0.0)))
+            .unwrap();
+        map.join_shared(c, 1, corner).unwrap();
+        assert!(map.join_shared(c, 1, corner).is_err(), "already shared");
+        let members = |map: &FeatureMap| map.shared_block(corner).unwrap().members.clone();
+        assert_eq!(members(&map), vec![(a, 1), (b, 0), (c, 1)]);
+        assert_eq!(
+            map.get(c).unwrap().coordinates().block(1),
+            Some(&CoordBlock::Point2(v(2.0, 0.0)))
+        );
+        let roundtrip = |map: &FeatureMap| -> FeatureMap {
+            serde_json::from_str(&serde_json::to_string(map).unwrap()).unwrap()
+        };
+        roundtrip(&map).check_consistency().unwrap();
+        map.remove_from_shared(a).unwrap();
+        map.remove_from_shared(b).unwrap();
+        assert_eq!(members(&map), vec![(c, 1)]);
+        assert!(map.remove_from_shared(c).is_err(), "the last member stays");
+        assert!(map.get(c).is_ok());
+        assert_eq!(roundtrip(&map).len(), 1);
+        assert!(map.get(a).is_err());
+    }
+
     /// A corner needs an angle: a wall at 90 or 35 degrees may share the end, a wall folded
     /// back onto this one or continuing it at 10 degrees may not, and a pole never.
     #[test]

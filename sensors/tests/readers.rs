@@ -5,8 +5,8 @@ use std::collections::{BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
 
 use slam_sensors::data::{
-    CarmenOptions, MrclamOptions, VictoriaParkOptions, read_carmen, read_mrclam, read_rb2d,
-    read_victoria_park,
+    CarmenOptions, MrclamOptions, NO_RETURN_BAND, VictoriaParkOptions, read_carmen, read_mrclam,
+    read_rb2d, read_victoria_park,
 };
 use slam_sensors::{Dataset, Event, TruthKind};
 
@@ -100,7 +100,10 @@ fn radish_carmen_counts() {
             match &event.event {
                 Event::Scan { scan, .. } => {
                     assert_eq!(scan.ranges.len(), beams, "{file}");
-                    assert!(scan.ranges.iter().all(|&r| r <= scan.max_range), "{file}");
+                    // The maximum range is the file's largest reading less the no-return
+                    // band: no reading lies above that largest.
+                    let largest = scan.max_range / (1.0 - NO_RETURN_BAND);
+                    assert!(scan.ranges.iter().all(|&r| r <= largest + 1e-9), "{file}");
                 }
                 Event::GroundTruth { kind, .. } => assert_eq!(*kind, TruthKind::Reference),
                 _ => {}
@@ -124,13 +127,43 @@ fn intel_max_range_readings_are_invalid() {
     let (mut total, mut valid) = (0, 0);
     for event in &data.events {
         if let Event::Scan { scan, .. } = &event.event {
-            assert!((scan.max_range - 81.83).abs() < 1e-9, "{}", scan.max_range);
+            let expected = 81.83 * (1.0 - NO_RETURN_BAND);
+            assert!(
+                (scan.max_range - expected).abs() < 1e-9,
+                "{}",
+                scan.max_range
+            );
             total += scan.ranges.len();
             valid += scan.points().len();
         }
     }
     assert_eq!(total, 910 * 180);
     assert!(valid < total && valid > total / 2, "{valid} of {total}");
+}
+
+/// The acapulco log codes "no return" as 51.15 m with a jitter (51.09-51.25 m): none of
+/// those readings is a point (they drew arcs that the line extractor took for walls).
+#[test]
+fn acapulco_no_return_codes_with_jitter_are_invalid() {
+    let root = datasets();
+    let path = root.join("radish-carmen-corrected/acapulco-corrected.log.gz");
+    let data = read_carmen(&path, &CarmenOptions::default()).unwrap();
+    let (mut coded, mut valid_coded, mut valid) = (0, 0, 0);
+    for event in &data.events {
+        if let Event::Scan { scan, .. } = &event.event {
+            coded += scan
+                .ranges
+                .iter()
+                .filter(|r| (51.0..51.3).contains(*r))
+                .count();
+            let points = scan.points();
+            valid_coded += points.iter().filter(|p| p.range >= 51.0).count();
+            valid += points.len();
+        }
+    }
+    assert!(coded > 12_000, "{coded} coded readings");
+    assert_eq!(valid_coded, 0);
+    assert!(valid > 861 * 181 / 2, "{valid} valid readings");
 }
 
 /// Data lines of an MR.CLAM file (not `#` headers, not blank), as whitespace-split fields.

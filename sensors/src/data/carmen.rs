@@ -78,14 +78,21 @@ use crate::events::{
 use crate::odometry::{OdometryNoise, PoseIncrement};
 use crate::scan::LaserScan;
 
+/// Where the maximum range is the file's largest reading, the readings within this fraction
+/// below it are "no return" too: the no-return code of the acapulco and fhw logs (Radish)
+/// comes with a jitter (51.09-51.25 m, 51.05-51.1 m), and taken as returns those readings
+/// drew arcs at the maximum range that the line extractor took for walls 50 m away.
+pub const NO_RETURN_BAND: f64 = 0.01;
+
 /// How to read a CARMEN log.
 #[derive(Clone, Debug)]
 pub struct CarmenOptions {
     /// Readings at or above this are "no return", m. `None`: a `ROBOTLASER1` line's own
-    /// `maximum_range` when positive, otherwise the largest range found on any laser line of
-    /// the file (max-range readings are logged as the sensor maximum, e.g. 81.83 m, so they
-    /// become invalid; the cost is that the single farthest genuine return, if any reaches that
-    /// value, is dropped too).
+    /// `maximum_range` when positive, otherwise [`NO_RETURN_BAND`] below the largest range
+    /// found on any laser line of the file: max-range readings are logged as the sensor
+    /// maximum (e.g. 81.83 m), some sensors with a jitter of a few centimetres (51.09-51.25 m
+    /// in one log), so they all become invalid; the cost is that a genuine return that close
+    /// to the maximum is dropped too.
     pub max_range: Option<f64>,
     /// Readings at or below this are invalid, m. Default 0.
     pub min_range: f64,
@@ -244,7 +251,8 @@ struct CarmenReader {
     lines: Lines,
     options: CarmenOptions,
     skipped: SkipCounter,
-    /// The largest reading of the file, once a line has needed it.
+    /// The maximum range inferred from the file's largest reading ([`NO_RETURN_BAND`] below
+    /// it), once a line has needed it.
     file_max: Option<f64>,
     previous_odometry: Option<Pose2>,
     /// The robot pose of the last laser line, until the next `ODOM` line.
@@ -297,7 +305,9 @@ impl CarmenReader {
                     Some(max_range) => max_range,
                     None => match self.file_max {
                         Some(file_max) => file_max,
-                        None => *self.file_max.insert(largest_range(path)?),
+                        None => *self
+                            .file_max
+                            .insert(largest_range(path)? * (1.0 - NO_RETURN_BAND)),
                     },
                 };
                 let pose = laser.robot_pose;
@@ -1158,7 +1168,8 @@ mod tests {
             panic!()
         };
         assert!((robot_from_sensor.yaw.abs() - PI).abs() < 1e-12);
-        assert_eq!(scan.max_range, 3.0); // the largest reading of the file
+        // The largest reading of the file, less the no-return band.
+        assert_eq!(scan.max_range, 3.0 * (1.0 - NO_RETURN_BAND));
         let Event::Scan {
             robot_from_sensor,
             scan,

@@ -41,7 +41,7 @@ mod units;
 pub mod victoria_park;
 
 pub use self::mcap::{McapOptions, read_mcap, stream_mcap};
-pub use carmen::{CarmenOptions, read_carmen, stream_carmen};
+pub use carmen::{CarmenOptions, NO_RETURN_BAND, read_carmen, stream_carmen};
 pub use mrclam::{MrclamOptions, read_mrclam, stream_mrclam};
 pub use pose_odometry::{PoseOdometryParams, odometry_from_poses};
 pub use rb2d::{read_rb2d, stream_rb2d};

@@ -206,8 +206,9 @@ impl<P: RobotPose> Ekf<P> {
         };
         let holds_shared =
             |id: FeatureId| -> Result<bool> { Ok(self.map.links(id)?.iter().any(Option::is_some)) };
+        // (kept, removed): first the order whose removed feature holds no corner, if any.
         let mut orders = [(first, second), (second, first)];
-        if holds_shared(first)? && !holds_shared(second)? {
+        if holds_shared(second)? && !holds_shared(first)? {
             orders.swap(0, 1);
         }
         for (keep, drop) in orders {
@@ -520,6 +521,44 @@ mod tests {
             // A's own rows (pivot and end) and B's are gone; the two corners stay.
             assert_eq!(ekf.state_dim(), dim - 4);
         }
+    }
+
+    /// Of a wall holding a corner and a duplicate holding none, the corner holder is kept even
+    /// when the duplicate was seen more often and could take the corner: a merge that moves
+    /// no corner is preferred.
+    #[test]
+    fn the_corner_holder_is_kept_when_the_duplicate_holds_none() {
+        let params = EkfParams {
+            confirm_after: 1,
+            merge_duplicates: false,
+            ..EkfParams::default()
+        };
+        let mut ekf = Ekf::new(Pose2::identity(), DMatrix::identity(3, 3) * 1e-4, params).unwrap();
+        let both = [true, true];
+        let bd = map_walls(
+            &mut ekf,
+            || {
+                vec![
+                    wall([0.5, 2.0], [3.0, 2.0], both),
+                    wall([3.0, 2.0], [3.0, 4.0], both),
+                ]
+            },
+            2,
+        );
+        let a = map_walls(&mut ekf, || vec![wall([-1.0, 2.0], [3.0, 2.0], both)], 4);
+        let (wall_a, wall_b) = (a[0], bd[0]);
+        assert_eq!(ekf.corners_joined(), 1);
+        assert!(ekf.map().links(wall_a).unwrap().iter().all(Option::is_none));
+        ekf.params.merge_duplicates = true;
+        ekf.merge_duplicates_of(wall_a).unwrap();
+        assert_eq!((ekf.features_merged(), ekf.map().len()), (1, 2));
+        assert!(
+            ekf.map().get(wall_a).is_err(),
+            "the duplicate is the one removed"
+        );
+        let corner = ekf.map().shared_block(slam_core::SharedBlockId(0)).unwrap();
+        let members: Vec<_> = corner.members.iter().map(|(id, _)| *id).collect();
+        assert_eq!(members, vec![wall_b, bd[1]]);
     }
 
     /// Two trees 0.8 m apart (beyond `merge_distance`) started from sightings whose

@@ -462,6 +462,29 @@ mod tests {
         ids
     }
 
+    /// A filter (merging off) that has mapped wall B (x 0.5-3 on y = 2) joined at (3, 2) to
+    /// wall D (x = 3, up to y = 4); returns the filter and `[B, D]`.
+    fn wall_b_with_corner_d() -> (Ekf<Pose2>, Vec<slam_core::FeatureId>) {
+        let params = EkfParams {
+            confirm_after: 1,
+            merge_duplicates: false,
+            ..EkfParams::default()
+        };
+        let mut ekf = Ekf::new(Pose2::identity(), DMatrix::identity(3, 3) * 1e-4, params).unwrap();
+        let both = [true, true];
+        let bd = map_walls(
+            &mut ekf,
+            || {
+                vec![
+                    wall([0.5, 2.0], [3.0, 2.0], both),
+                    wall([3.0, 2.0], [3.0, 4.0], both),
+                ]
+            },
+            2,
+        );
+        (ekf, bd)
+    }
+
     /// A wall mapped twice round a loop, each copy joined to the corner at its own end: wall
     /// B (x 0.5-3 on y = 2) holds the corner with D at (3, 2), then wall A (x -1-3) is mapped
     /// with C, joined to it at (-1, 2), and ends free at (3, 2). Merging passes B's corner to
@@ -471,24 +494,8 @@ mod tests {
     #[test]
     fn duplicates_holding_corners_at_their_own_ends_are_merged() {
         for a_end_real in [true, false] {
-            let params = EkfParams {
-                confirm_after: 1,
-                merge_duplicates: false,
-                ..EkfParams::default()
-            };
-            let mut ekf =
-                Ekf::new(Pose2::identity(), DMatrix::identity(3, 3) * 1e-4, params).unwrap();
+            let (mut ekf, bd) = wall_b_with_corner_d();
             let both = [true, true];
-            let bd = map_walls(
-                &mut ekf,
-                || {
-                    vec![
-                        wall([0.5, 2.0], [3.0, 2.0], both),
-                        wall([3.0, 2.0], [3.0, 4.0], both),
-                    ]
-                },
-                2,
-            );
             let ac = map_walls(
                 &mut ekf,
                 || {
@@ -528,23 +535,8 @@ mod tests {
     /// no corner is preferred.
     #[test]
     fn the_corner_holder_is_kept_when_the_duplicate_holds_none() {
-        let params = EkfParams {
-            confirm_after: 1,
-            merge_duplicates: false,
-            ..EkfParams::default()
-        };
-        let mut ekf = Ekf::new(Pose2::identity(), DMatrix::identity(3, 3) * 1e-4, params).unwrap();
+        let (mut ekf, bd) = wall_b_with_corner_d();
         let both = [true, true];
-        let bd = map_walls(
-            &mut ekf,
-            || {
-                vec![
-                    wall([0.5, 2.0], [3.0, 2.0], both),
-                    wall([3.0, 2.0], [3.0, 4.0], both),
-                ]
-            },
-            2,
-        );
         let a = map_walls(&mut ekf, || vec![wall([-1.0, 2.0], [3.0, 2.0], both)], 4);
         let (wall_a, wall_b) = (a[0], bd[0]);
         assert_eq!(ekf.corners_joined(), 1);

@@ -7,6 +7,7 @@
 //! registered by the estimated or the given poses; `"relocalize"` ([`RelocalizeConfig`]),
 //! every scan placed again against the final wall map.
 
+mod chain;
 mod em_polygon;
 mod relocalize;
 

@@ -11,8 +11,19 @@
 //! estimate and at its estimate moved by the correction of the scan before (corrections
 //! vary slowly along the path: a stretch driven before a loop closed may sit far from where
 //! the final map puts it); the placement whose returns fit the walls better is kept. The
-//! map is not changed. Steps between scans, and scans with too few returns near a wall, keep the
-//! correction of the last placed scan.
+//! map is not changed.
+//!
+//! Then the path of the scans is smoothed (`smooth`): each placement is a measurement of its
+//! scan's pose, with the information of its returns divided by `information_divisor` plus
+//! that of its prior (the estimate's covariance: it keeps the estimate along what the walls
+//! leave free, a corridor's length; the priors of consecutive scans are not independent, but
+//! wherever the walls constrain the pose they weigh little beside its returns), and the
+//! odometry between consecutive scans (the compound of the motion events between them, with
+//! its covariance) links the poses. A Cauchy loss on each placement's Mahalanobis distance
+//! (scale `outlier_scale`) lets the odometry and the other placements outvote a placement
+//! that fits the wrong walls, even a run of them, and a scan with too few returns near a wall
+//! follows the odometry from its placed neighbours. Steps between scans keep the correction of
+//! the scan before them.
 //!
 //! It writes the relocalized path (`relocalize/trajectory.tum`) and its figures: ATE against
 //! the data's poses and the median distance of the scan readings to the walls, before and
@@ -27,16 +38,20 @@
 //! gate = 0.4           # pairing reach at the first iteration, m (then gate / k) ...
 //! final_gate = 0.1     # ... but never below this, m
 //! iterations = 8
-//! min_pairs = 10       # a scan with fewer paired returns keeps its pose
+//! min_pairs = 10       # a scan with fewer paired returns is not placed
+//! smooth = true        # the placements and the odometry between scans smoothed together
+//! information_divisor = 4.0  # a placement's information: its returns' divided by this
+//! outlier_scale = 3.0  # Mahalanobis distance at which a placement's weight halves
 //! ```
 
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
-use slam_core::nalgebra::{Matrix3, Vector2, Vector3};
-use slam_core::{Estimator, Pose2, UpdateReport};
-use slam_sensors::{Event, TimedEvent};
+use slam_core::nalgebra::{DMatrix, Matrix3, Vector2, Vector3};
+use slam_core::{Estimator, Pose2, Pose3, UpdateReport};
+use slam_sensors::{Event, LaserScan, TimedEvent};
 
+use super::chain::{ChainNode, Odometry, PoseMeasurement, smooth_chain};
 use super::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
 use crate::error::{Result, RuntimeError};
 use crate::eval::{
@@ -60,9 +75,22 @@ pub struct RelocalizeConfig {
     pub final_gate: f64,
     /// Gauss-Newton iterations per scan at most.
     pub iterations: usize,
-    /// A scan with fewer returns paired with a wall keeps its estimated pose.
+    /// A scan with fewer returns paired with a wall is not placed.
     pub min_pairs: usize,
+    /// Smooth the placed path: each scan's placement as a measurement of its pose, the
+    /// odometry between scans linking them (a placement that disagrees with its neighbours
+    /// and the odometry is outvoted).
+    pub smooth: bool,
+    /// A placement's information is that of its returns divided by this (neighbouring
+    /// returns see the same surfaces; their errors are not independent).
+    pub information_divisor: f64,
+    /// The Mahalanobis distance from the smoothed pose at which a placement's weight halves
+    /// (Cauchy loss).
+    pub outlier_scale: f64,
 }
+
+/// Gauss-Newton iterations of the smoothing at most.
+const CHAIN_ITERATIONS: usize = 30;
 
 impl Default for RelocalizeConfig {
     fn default() -> Self {
@@ -74,6 +102,9 @@ impl Default for RelocalizeConfig {
             final_gate: 0.1,
             iterations: 8,
             min_pairs: 10,
+            smooth: true,
+            information_divisor: 4.0,
+            outlier_scale: 3.0,
         }
     }
 }
@@ -85,6 +116,8 @@ impl PostProcessConfig for RelocalizeConfig {
             ("sigma", self.sigma),
             ("gate", self.gate),
             ("final_gate", self.final_gate),
+            ("information_divisor", self.information_divisor),
+            ("outlier_scale", self.outlier_scale),
         ];
         for (name, value) in positive {
             if !(value.is_finite() && value > 0.0) {
@@ -126,20 +159,27 @@ impl PostProcessConfig for RelocalizeConfig {
         Ok(Box::new(Relocalize {
             config: self.clone(),
             scans: Vec::new(),
+            pending_odometry: None,
         }))
     }
 }
 
-/// A scan's kept returns in the robot frame, with its time.
+/// A scan's kept returns in the robot frame, with its time and the odometry since the scan
+/// before.
 struct RobotScan {
     time: f64,
     in_robot: Vec<Vector2<f64>>,
+    /// The compound of the motion events since the scan before (`None` for the first scan
+    /// and where no motion came between).
+    odometry: Option<(Pose2, Matrix3<f64>)>,
 }
 
-/// The stage at work: it keeps every scan's used returns.
+/// The stage at work: it keeps every scan's used returns and the odometry between scans.
 struct Relocalize {
     config: RelocalizeConfig,
     scans: Vec<RobotScan>,
+    /// The compound of the motion events since the last scan and its covariance.
+    pending_odometry: Option<(Pose2, Matrix3<f64>)>,
 }
 
 impl Observer for Relocalize {
@@ -149,17 +189,50 @@ impl Observer for Relocalize {
         _: Option<&UpdateReport>,
         _: &dyn Estimator<Pose2>,
     ) -> Result<()> {
-        let Event::Scan {
-            scan,
-            robot_from_sensor,
-        } = &event.event
-        else {
-            return Ok(());
-        };
+        self.record(event)
+    }
+}
+
+impl Relocalize {
+    /// Keeps what the stage needs of an event: a scan's returns, a motion's increment.
+    fn record(&mut self, event: &TimedEvent) -> Result<()> {
+        match &event.event {
+            Event::Scan {
+                scan,
+                robot_from_sensor,
+            } => {
+                let odometry = self.pending_odometry.take();
+                self.scans.push(RobotScan {
+                    time: event.time,
+                    in_robot: self.returns_in_robot(scan, robot_from_sensor),
+                    odometry: odometry.filter(|_| !self.scans.is_empty()),
+                });
+            }
+            Event::Motion(motion) => {
+                let (pose, covariance) = self
+                    .pending_odometry
+                    .unwrap_or((Pose2::identity(), Matrix3::zeros()));
+                let prediction = motion.predict(&pose)?;
+                let covariance = prediction.propagate_covariance(&DMatrix::from_column_slice(
+                    3,
+                    3,
+                    covariance.as_slice(),
+                ))?;
+                self.pending_odometry = Some((
+                    prediction.pose,
+                    Matrix3::from_column_slice(covariance.as_slice()),
+                ));
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// The used returns of a scan in the robot frame.
+    fn returns_in_robot(&self, scan: &LaserScan, robot_from_sensor: &Pose3) -> Vec<Vector2<f64>> {
         let max_range = self.config.max_range;
         let rotation = robot_from_sensor.rotation();
-        let in_robot = scan
-            .points()
+        scan.points()
             .iter()
             .filter(|p| max_range <= 0.0 || p.range <= max_range)
             .step_by(self.config.beam_step)
@@ -168,12 +241,7 @@ impl Observer for Relocalize {
                     + rotation * Vector3::new(p.position.x, p.position.y, 0.0);
                 q.xy()
             })
-            .collect();
-        self.scans.push(RobotScan {
-            time: event.time,
-            in_robot,
-        });
-        Ok(())
+            .collect()
     }
 }
 
@@ -184,9 +252,13 @@ struct Metrics {
     scans: usize,
     /// Scans whose pose was re-estimated.
     relocalized: usize,
-    /// Scans that kept the correction of the scan before (fewer than `min_pairs` returns
-    /// near a wall).
+    /// Scans not placed (fewer than `min_pairs` returns near a wall): they keep the
+    /// correction of the scan before, or with smoothing follow the odometry from their placed
+    /// neighbours.
     kept: usize,
+    /// Placements the smoothing outvoted (weight below one half: farther than
+    /// `outlier_scale` from the smoothed pose); 0 without smoothing.
+    outvoted: usize,
     /// Confirmed walls the scans were fitted to.
     walls: usize,
     /// Mean and largest change of position, m, and mean change of heading, rad.
@@ -243,8 +315,13 @@ impl PostProcess for Relocalize {
         // stretch driven before a loop closed may sit far from where the final map puts it).
         // The placement whose returns fit the walls better wins.
         let mut world_from_estimate = Pose2::identity();
+        let mut nodes: Vec<ChainNode> = Vec::with_capacity(self.scans.len());
+        let mut estimates: Vec<Pose2> = Vec::with_capacity(self.scans.len());
+        // Whether the scan before became a node (the odometry links to it).
+        let mut chained = false;
         for scan in &self.scans {
             let Some(k) = index_at(&before, scan.time) else {
+                chained = false;
                 continue;
             };
             let estimate = before[k].1;
@@ -273,10 +350,22 @@ impl PostProcess for Relocalize {
                 placed += 1;
             }
             corrections.push((scan.time, world_from_estimate));
+            nodes.push(self.chain_node(
+                world_from_estimate.compose(&estimate),
+                best.as_ref(),
+                scan.odometry.filter(|_| chained),
+            ));
+            estimates.push(estimate);
+            chained = true;
         }
+        let outvoted = if self.config.smooth {
+            smooth_corrections(&nodes, &estimates, &mut corrections, &self.config, run.name)?
+        } else {
+            0
+        };
         let after = corrected(&before, &corrections);
         let time_s = clock.elapsed().as_secs_f64();
-        let metrics = self.metrics(run, &walls, &before, &after, placed, time_s)?;
+        let metrics = self.metrics(run, &walls, &before, &after, (placed, outvoted), time_s)?;
         let summary = summary(&metrics);
         let points = run
             .record
@@ -295,6 +384,31 @@ impl PostProcess for Relocalize {
 }
 
 impl Relocalize {
+    /// The chain node of a scan: its pose as placed (`initial`), its placement as a
+    /// measurement and the odometry from the scan before.
+    fn chain_node(
+        &self,
+        initial: Pose2,
+        placement: Option<&Placement>,
+        odometry: Option<(Pose2, Matrix3<f64>)>,
+    ) -> ChainNode {
+        // A floor of (1 mm)^2 and (0.3 mrad)^2 keeps a standstill's odometry invertible.
+        let floor = Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 1e-7));
+        ChainNode {
+            initial,
+            measurement: placement.map(|p| PoseMeasurement {
+                pose: p.world_from_robot,
+                information: p.information / self.config.information_divisor + p.prior_information,
+            }),
+            odometry: odometry.and_then(|(increment, covariance)| {
+                Some(Odometry {
+                    increment,
+                    information: (covariance + floor).try_inverse()?,
+                })
+            }),
+        }
+    }
+
     /// The stage's figures.
     fn metrics(
         &self,
@@ -302,7 +416,7 @@ impl Relocalize {
         walls: &[(Vector2<f64>, Vector2<f64>)],
         before: &[(f64, Pose2)],
         after: &[(f64, Pose2)],
-        relocalized: usize,
+        (relocalized, outvoted): (usize, usize),
         time_s: f64,
     ) -> Result<Metrics> {
         let shifts: Vec<(f64, f64)> = before
@@ -325,6 +439,7 @@ impl Relocalize {
             scans: self.scans.len(),
             relocalized,
             kept: self.scans.len() - relocalized,
+            outvoted,
             walls: walls.len(),
             mean_shift_m: shifts.iter().map(|s| s.0).sum::<f64>() / n,
             max_shift_m: shifts.iter().map(|s| s.0).fold(0.0, f64::max),
@@ -340,17 +455,48 @@ impl Relocalize {
     }
 }
 
+/// Smooths the placed scans' poses (`nodes`, one per correction) and replaces each scan's
+/// correction by the one that takes its estimate to its smoothed pose. Returns the number of
+/// placements outvoted.
+fn smooth_corrections(
+    nodes: &[ChainNode],
+    estimates: &[Pose2],
+    corrections: &mut [(f64, Pose2)],
+    config: &RelocalizeConfig,
+    name: &str,
+) -> Result<usize> {
+    if nodes.is_empty() {
+        return Ok(0);
+    }
+    let smoothed =
+        smooth_chain(nodes, config.outlier_scale, CHAIN_ITERATIONS).ok_or_else(|| {
+            RuntimeError::Data(format!(
+                "{name}: relocalize could not smooth the path (singular normal equations)"
+            ))
+        })?;
+    for ((correction, pose), estimate) in corrections.iter_mut().zip(&smoothed.poses).zip(estimates)
+    {
+        correction.1 = pose.compose(&estimate.inverse());
+    }
+    Ok(nodes
+        .iter()
+        .zip(&smoothed.weights)
+        .filter(|(node, weight)| node.measurement.is_some() && **weight < 0.5)
+        .count())
+}
+
 /// The summary line of the stage.
 fn summary(m: &Metrics) -> String {
     let metres = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{v:.3} m"));
     let centimetres = |v: Option<f64>| v.map_or("n/a".into(), |v| format!("{:.1} cm", 100.0 * v));
     let revisit = |v: Option<RevisitConsistency>| centimetres(v.map(|r| r.median_m));
     format!(
-        "relocalize: {} of {} scans placed against {} walls ({:.1} s); ATE {} -> {}; median \
-         scan reading to wall {} -> {}; passes apart (median) {} -> {}",
+        "relocalize: {} of {} scans placed against {} walls, {} outvoted ({:.1} s); ATE {} -> {}; \
+         median scan reading to wall {} -> {}; passes apart (median) {} -> {}",
         m.relocalized,
         m.scans,
         m.walls,
+        m.outvoted,
         m.time_s,
         metres(m.ate_rmse_before_m),
         metres(m.ate_rmse_after_m),
@@ -395,6 +541,11 @@ struct Placement {
     /// The Cauchy cost of the returns at the final gate (a return farther than the gate from
     /// every wall costs as much as one at the gate): lower is a better fit to the map.
     misfit: f64,
+    /// The information of the pose from the returns near a wall (the Gauss-Newton Hessian of
+    /// their Cauchy-weighted distances at the final gate), without the prior.
+    information: Matrix3<f64>,
+    /// The information of the placement's prior (the estimate's covariance, inverted).
+    prior_information: Matrix3<f64>,
 }
 
 /// The maximum a posteriori pose of one scan (returns `in_robot`) against the walls, with
@@ -410,16 +561,16 @@ fn relocalize(
 ) -> Option<Placement> {
     // A floor of (1 mm)^2 and (0.3 mrad)^2 keeps an exactly known pose (the start) invertible.
     let floor = Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 1e-7));
-    let information = (covariance + floor).try_inverse()?;
+    let prior_information = (covariance + floor).try_inverse()?;
     let prior = prior.to_vector();
     let mut state = prior;
     for iteration in 1..=config.iterations {
         let gate = (config.gate / iteration as f64).max(config.final_gate);
         let world_from_robot = Pose2::new(state[0], state[1], state[2]);
-        let mut hessian = information;
+        let mut hessian = prior_information;
         let mut delta = state - prior;
         delta[2] = slam_core::wrap_angle(delta[2]);
-        let mut gradient = information * delta;
+        let mut gradient = prior_information * delta;
         let mut paired = 0;
         for p in in_robot {
             let (in_world, d_pose, _) = world_from_robot.transform_point_with_jacobians(p);
@@ -444,11 +595,15 @@ fn relocalize(
     let world_from_robot = Pose2::new(state[0], state[1], state[2]);
     let mut paired = 0;
     let mut misfit = 0.0;
+    let mut information = Matrix3::zeros();
     for p in in_robot {
-        let in_world = world_from_robot.transform_point(p);
+        let (in_world, d_pose, _) = world_from_robot.transform_point_with_jacobians(p);
         let residual = match wall_residual(grid, walls, &in_world, config.final_gate) {
-            Some((_, residual)) => {
+            Some((normal, residual)) => {
                 paired += 1;
+                let jacobian = (normal.transpose() * d_pose).transpose();
+                information +=
+                    jacobian * jacobian.transpose() * cauchy_weight(residual, config.sigma);
                 residual
             }
             None => config.final_gate,
@@ -458,6 +613,8 @@ fn relocalize(
     (paired >= config.min_pairs).then_some(Placement {
         world_from_robot,
         misfit,
+        information,
+        prior_information,
     })
 }
 
@@ -602,6 +759,53 @@ mod tests {
             from_carried.misfit < from_off.misfit,
             "{from_carried:?} against {from_off:?}"
         );
+    }
+
+    #[test]
+    fn the_odometry_between_scans_is_compounded_and_the_first_scan_has_none() {
+        let mut stage = Relocalize {
+            config: RelocalizeConfig::default(),
+            scans: Vec::new(),
+            pending_odometry: None,
+        };
+        let scan = || Event::Scan {
+            scan: LaserScan::new(-0.5, 0.5, vec![2.0; 11], 0.0, 30.0).unwrap(),
+            robot_from_sensor: Pose3::identity(),
+        };
+        let step = |x: f64, theta: f64, variance: f64| {
+            let increment = slam_sensors::odometry::PoseIncrement::new(
+                Pose2::new(x, 0.0, theta),
+                Matrix3::identity() * variance,
+            )
+            .unwrap();
+            Event::Motion(Box::new(increment))
+        };
+        let events = [
+            (0.0, step(0.3, 0.0, 1e-4)),
+            (0.0, scan()),
+            (1.0, step(1.0, std::f64::consts::FRAC_PI_2, 1e-4)),
+            (2.0, step(1.0, 0.0, 1e-4)),
+            (2.0, scan()),
+            (3.0, scan()),
+        ];
+        for (time, event) in events {
+            stage.record(&TimedEvent { time, event }).unwrap();
+        }
+        assert_eq!(stage.scans.len(), 3);
+        // The motion before the first scan links it to nothing.
+        assert!(stage.scans[0].odometry.is_none());
+        let (increment, covariance) = stage.scans[1].odometry.unwrap();
+        assert!((increment.x - 1.0).abs() < 1e-12 && (increment.y - 1.0).abs() < 1e-12);
+        assert!((increment.theta - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        // The second step's variance plus the first's, carried through the turn: its heading
+        // variance moves the second step's end sideways by 1 m per radian.
+        assert!((covariance[(2, 2)] - 2e-4).abs() < 1e-12, "{covariance}");
+        assert!(
+            (covariance[(0, 0)] - (2e-4 + 1e-4)).abs() < 1e-12,
+            "{covariance}"
+        );
+        // No motion between the last two scans.
+        assert!(stage.scans[2].odometry.is_none());
     }
 
     #[test]

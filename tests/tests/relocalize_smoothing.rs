@@ -49,6 +49,10 @@ fn smoothed_placements_are_as_close_to_the_truth_as_the_placements_alone() {
         smoothed.summary
     );
     assert!(smoothed.metrics["outvoted"].as_u64().is_some());
+    // The office's walls are all real: the rays see through none of them, and the stage's
+    // map keeps every feature.
+    assert_eq!(smoothed.metrics["seen_through"]["walls"].as_u64(), Some(0));
+    assert_eq!(smoothed.map.len(), alone.map.len());
     assert_eq!(alone.metrics["outvoted"].as_u64(), Some(0));
     assert!(ate(&smoothed) <= ate(&alone) * 1.1 + 1e-3);
     assert!(ate(&smoothed) <= filter * 1.1 + 1e-3);

@@ -10,6 +10,7 @@
 mod chain;
 mod em_polygon;
 mod relocalize;
+mod see_through;
 
 use std::fmt::Debug;
 

@@ -10,8 +10,7 @@
 //! iterations). Scans are taken in order. Each is placed twice, with the prior at its
 //! estimate and at its estimate moved by the correction of the scan before (corrections
 //! vary slowly along the path: a stretch driven before a loop closed may sit far from where
-//! the final map puts it); the placement whose returns fit the walls better is kept. The
-//! map is not changed.
+//! the final map puts it); the placement whose returns fit the walls better is kept.
 //!
 //! Then the path of the scans is smoothed (`smooth`): each placement is a measurement of its
 //! scan's pose, with the information of its returns divided by `information_divisor` plus
@@ -25,9 +24,18 @@
 //! follows the odometry from its placed neighbours. Steps between scans keep the correction of
 //! the scan before them.
 //!
-//! It writes the relocalized path (`relocalize/trajectory.tum`) and its figures: ATE against
-//! the data's poses and the median distance of the scan readings to the walls, before and
-//! after (`relocalize/metrics.json`). The run's own `trajectory.tum` stays the filter's.
+//! Last, the scans placed by that path test the walls: a ray that crosses a wall (at least
+//! 0.2 m inside its ends) and returns at least 0.3 m beyond it sees through it. A confirmed
+//! wall that more than `max_see_through` of at least 20 rays (on it or through it) see
+//! through is not a surface where the map puts it (a line fitted across furniture, a
+//! zigzag's peaks, a wall placed off) and is left out of the stage's map
+//! (`relocalize/map.json`). The filter's map is not changed.
+//!
+//! It writes the relocalized path (`relocalize/trajectory.tum`), its map and its figures:
+//! ATE against the data's poses and the median distance of the scan readings to the walls
+//! (all the confirmed walls the scans were placed against), before and after, the placements
+//! outvoted and the walls left out (`relocalize/metrics.json`). The run's own
+//! `trajectory.tum` stays the filter's.
 //!
 //! ```toml
 //! [[postprocess]]
@@ -42,20 +50,23 @@
 //! smooth = true        # the placements and the odometry between scans smoothed together
 //! information_divisor = 4.0  # a placement's information: its returns' divided by this
 //! outlier_scale = 3.0  # Mahalanobis distance at which a placement's weight halves
+//! max_see_through = 0.5  # walls more of whose rays pass through are left out (1: none)
 //! ```
 
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{DMatrix, Matrix3, Vector2, Vector3};
-use slam_core::{Estimator, Pose2, Pose3, UpdateReport};
+use slam_core::{Estimator, FeatureId, FeatureMap, Pose2, Pose3, Shape, UpdateReport};
 use slam_sensors::{Event, LaserScan, TimedEvent};
 
 use super::chain::{ChainNode, Odometry, PoseMeasurement, smooth_chain};
+use super::see_through::ray_evidence;
 use super::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
 use crate::error::{Result, RuntimeError};
 use crate::eval::{
-    RevisitConsistency, SegmentGrid, confirmed_wall_segments, map_quality, revisit_consistency,
+    MapQuality, RevisitConsistency, SegmentGrid, confirmed, confirmed_wall_segments, map_quality,
+    revisit_consistency,
 };
 use crate::session::Observer;
 
@@ -87,7 +98,14 @@ pub struct RelocalizeConfig {
     /// The Mahalanobis distance from the smoothed pose at which a placement's weight halves
     /// (Cauchy loss).
     pub outlier_scale: f64,
+    /// A confirmed wall that more than this fraction of the rays crossing or ending on it
+    /// (at least [`MIN_RAYS`]) see through, placed by the relocalized path, is left out of
+    /// the stage's map (1: every wall is kept).
+    pub max_see_through: f64,
 }
+
+/// The fewest rays (on a wall or through it) that decide whether it is seen through.
+pub const MIN_RAYS: usize = 20;
 
 /// Gauss-Newton iterations of the smoothing at most.
 const CHAIN_ITERATIONS: usize = 30;
@@ -105,6 +123,7 @@ impl Default for RelocalizeConfig {
             smooth: true,
             information_divisor: 4.0,
             outlier_scale: 3.0,
+            max_see_through: 0.5,
         }
     }
 }
@@ -133,6 +152,15 @@ impl PostProcessConfig for RelocalizeConfig {
                 format!(
                     "relocalize max_range must be 0 or positive, got {}",
                     self.max_range
+                ),
+            ));
+        }
+        if !(self.max_see_through > 0.0 && self.max_see_through <= 1.0) {
+            return Err(RuntimeError::setting(
+                "postprocess",
+                format!(
+                    "relocalize max_see_through must be in (0, 1], got {}",
+                    self.max_see_through
                 ),
             ));
         }
@@ -168,6 +196,8 @@ impl PostProcessConfig for RelocalizeConfig {
 /// before.
 struct RobotScan {
     time: f64,
+    /// Where the sensor sits in the robot frame (the rays start there).
+    origin: Vector2<f64>,
     in_robot: Vec<Vector2<f64>>,
     /// The compound of the motion events since the scan before (`None` for the first scan
     /// and where no motion came between).
@@ -204,6 +234,7 @@ impl Relocalize {
                 let odometry = self.pending_odometry.take();
                 self.scans.push(RobotScan {
                     time: event.time,
+                    origin: robot_from_sensor.translation.xy(),
                     in_robot: self.returns_in_robot(scan, robot_from_sensor),
                     odometry: odometry.filter(|_| !self.scans.is_empty()),
                 });
@@ -261,6 +292,12 @@ struct Metrics {
     outvoted: usize,
     /// Confirmed walls the scans were fitted to.
     walls: usize,
+    /// The walls left out of the stage's map: seen through by more than `max_see_through` of
+    /// their rays.
+    seen_through: SeenThrough,
+    /// The map figures of the confirmed walls kept in the stage's map, with the scan readings
+    /// placed by the relocalized path.
+    map_kept: Option<MapQuality>,
     /// Mean and largest change of position, m, and mean change of heading, rad.
     mean_shift_m: f64,
     max_shift_m: f64,
@@ -279,6 +316,28 @@ struct Metrics {
     revisits_after: Option<RevisitConsistency>,
     /// Seconds of the relocalization alone.
     time_s: f64,
+}
+
+/// A wall segment: its two ends, world frame.
+type Segment = (Vector2<f64>, Vector2<f64>);
+
+/// Every scan placed against the walls.
+struct Placements {
+    /// The correction (on the left) of each scan with an estimate, at its time.
+    corrections: Vec<(f64, Pose2)>,
+    /// Scans placed.
+    placed: usize,
+    /// Placements the smoothing outvoted.
+    outvoted: usize,
+}
+
+/// Walls left out of the stage's map because the rays see through them.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+struct SeenThrough {
+    /// How many.
+    walls: usize,
+    /// Their total length, m.
+    length_m: f64,
 }
 
 impl PostProcess for Relocalize {
@@ -307,33 +366,77 @@ impl PostProcess for Relocalize {
                 .filter(|r| r.time == time)
                 .map_or(Matrix3::zeros(), |r| r.covariance)
         };
-        let grid = SegmentGrid::new(&walls, 1.0);
+        let covariances: Vec<Matrix3<f64>> = self
+            .scans
+            .iter()
+            .map(|scan| covariance_at(scan.time))
+            .collect();
+        let Placements {
+            corrections,
+            placed,
+            outvoted,
+        } = self.place_all(&walls, &before, &covariances, run.name)?;
+        let after = corrected(&before, &corrections);
+        let (map, dropped, kept) = self.without_seen_through(estimator, &after)?;
+        let time_s = clock.elapsed().as_secs_f64();
+        let mut metrics = self.metrics(run, &walls, &before, &after, (placed, outvoted), time_s)?;
+        let points = run
+            .record
+            .scan_sample
+            .placed(|t| pose_exactly_at(&after, t));
+        metrics.seen_through = dropped;
+        metrics.map_kept = Some(map_quality(&kept, &points));
+        let summary = summary(&metrics);
+        Ok(PostProcessOutput {
+            name: "relocalize".into(),
+            map,
+            points,
+            path: after,
+            metrics: serde_json::to_value(&metrics)
+                .map_err(|e| RuntimeError::Invariant(format!("relocalize metrics: {e}")))?,
+            summary,
+        })
+    }
+}
+
+impl Relocalize {
+    /// Places every scan against `walls` (and smooths the placements, with `smooth`): the
+    /// correction of each scan that has an estimate (`before`), the number of scans placed
+    /// and the number of placements outvoted.
+    ///
+    /// Each scan is placed twice: from its estimate, and from the estimate moved by the
+    /// correction of the last placed scan (corrections vary slowly along the path, and a
+    /// stretch driven before a loop closed may sit far from where the final map puts it).
+    /// The placement whose returns fit the walls better wins.
+    fn place_all(
+        &self,
+        walls: &[(Vector2<f64>, Vector2<f64>)],
+        before: &[(f64, Pose2)],
+        covariances: &[Matrix3<f64>],
+        name: &str,
+    ) -> Result<Placements> {
+        let grid = SegmentGrid::new(walls, 1.0);
         let mut corrections: Vec<(f64, Pose2)> = Vec::with_capacity(self.scans.len());
         let mut placed = 0;
-        // Each scan is placed twice: from its estimate, and from the estimate moved by the
-        // correction of the last placed scan (corrections vary slowly along the path, and a
-        // stretch driven before a loop closed may sit far from where the final map puts it).
-        // The placement whose returns fit the walls better wins.
         let mut world_from_estimate = Pose2::identity();
         let mut nodes: Vec<ChainNode> = Vec::with_capacity(self.scans.len());
         let mut estimates: Vec<Pose2> = Vec::with_capacity(self.scans.len());
         // Whether the scan before became a node (the odometry links to it).
         let mut chained = false;
-        for scan in &self.scans {
-            let Some(k) = index_at(&before, scan.time) else {
+        for (scan, covariance) in self.scans.iter().zip(covariances) {
+            let Some(k) = index_at(before, scan.time) else {
                 chained = false;
                 continue;
             };
             let estimate = before[k].1;
-            let covariance = covariance_at(scan.time);
             let place = |prior: &Pose2| {
                 relocalize(
                     &self.config,
                     &grid,
-                    &walls,
+                    walls,
                     &scan.in_robot,
                     prior,
-                    &covariance,
+                    covariance,
                 )
             };
             let carried = world_from_estimate.compose(&estimate);
@@ -359,31 +462,60 @@ impl PostProcess for Relocalize {
             chained = true;
         }
         let outvoted = if self.config.smooth {
-            smooth_corrections(&nodes, &estimates, &mut corrections, &self.config, run.name)?
+            smooth_corrections(&nodes, &estimates, &mut corrections, &self.config, name)?
         } else {
             0
         };
-        let after = corrected(&before, &corrections);
-        let time_s = clock.elapsed().as_secs_f64();
-        let metrics = self.metrics(run, &walls, &before, &after, (placed, outvoted), time_s)?;
-        let summary = summary(&metrics);
-        let points = run
-            .record
-            .scan_sample
-            .placed(|t| pose_exactly_at(&after, t));
-        Ok(PostProcessOutput {
-            name: "relocalize".into(),
-            map: estimator.map().clone(),
-            points,
-            path: after,
-            metrics: serde_json::to_value(&metrics)
-                .map_err(|e| RuntimeError::Invariant(format!("relocalize metrics: {e}")))?,
-            summary,
+        Ok(Placements {
+            corrections,
+            placed,
+            outvoted,
         })
     }
-}
 
-impl Relocalize {
+    /// The final map without the confirmed walls that the scans, placed by `path`, see
+    /// through (more than `max_see_through` of at least [`MIN_RAYS`] rays), and what was left
+    /// out. A wall is left out with its memberships of shared corners, unless it is the last
+    /// member of one.
+    fn without_seen_through(
+        &self,
+        estimator: &dyn Estimator<Pose2>,
+        path: &[(f64, Pose2)],
+    ) -> Result<(FeatureMap, SeenThrough, Vec<Segment>)> {
+        let mut map = estimator.map().clone();
+        let mut dropped = SeenThrough::default();
+        let (ids, walls): (Vec<FeatureId>, Vec<Segment>) = estimator
+            .map()
+            .iter()
+            .filter(|(id, _)| confirmed(estimator, *id))
+            .filter_map(|(id, feature)| match feature.shape()? {
+                Shape::Wall { start, end } => Some((id, (start, end))),
+                _ => None,
+            })
+            .unzip();
+        if self.config.max_see_through >= 1.0 {
+            return Ok((map, dropped, walls));
+        }
+        let scans = self.scans.iter().filter_map(|scan| {
+            let pose = pose_exactly_at(path, scan.time)?;
+            let ends = scan.in_robot.iter().map(|p| pose.transform_point(p));
+            Some((pose.transform_point(&scan.origin), ends.collect()))
+        });
+        let evidence = ray_evidence(&walls, scans);
+        let mut kept = Vec::with_capacity(walls.len());
+        for ((id, (start, end)), seen) in ids.iter().zip(&walls).zip(&evidence) {
+            if seen.seen_through(self.config.max_see_through, MIN_RAYS)
+                && map.remove_from_shared(*id).is_ok()
+            {
+                dropped.walls += 1;
+                dropped.length_m += (end - start).norm();
+            } else {
+                kept.push((*start, *end));
+            }
+        }
+        Ok((map, dropped, kept))
+    }
+
     /// The chain node of a scan: its pose as placed (`initial`), its placement as a
     /// measurement and the odometry from the scan before.
     fn chain_node(
@@ -440,6 +572,8 @@ impl Relocalize {
             relocalized,
             kept: self.scans.len() - relocalized,
             outvoted,
+            seen_through: SeenThrough::default(),
+            map_kept: None,
             walls: walls.len(),
             mean_shift_m: shifts.iter().map(|s| s.0).sum::<f64>() / n,
             max_shift_m: shifts.iter().map(|s| s.0).fold(0.0, f64::max),
@@ -492,7 +626,8 @@ fn summary(m: &Metrics) -> String {
     let revisit = |v: Option<RevisitConsistency>| centimetres(v.map(|r| r.median_m));
     format!(
         "relocalize: {} of {} scans placed against {} walls, {} outvoted ({:.1} s); ATE {} -> {}; \
-         median scan reading to wall {} -> {}; passes apart (median) {} -> {}",
+         median scan reading to wall {} -> {}; passes apart (median) {} -> {}; {} walls \
+         ({:.0} m) seen through left out of its map",
         m.relocalized,
         m.scans,
         m.walls,
@@ -504,6 +639,8 @@ fn summary(m: &Metrics) -> String {
         centimetres(m.median_point_to_wall_after_m),
         revisit(m.revisits_before),
         revisit(m.revisits_after),
+        m.seen_through.walls,
+        m.seen_through.length_m,
     )
 }
 
@@ -838,6 +975,14 @@ mod tests {
             RelocalizeConfig {
                 final_gate: 1.0,
                 gate: 0.5,
+                ..Default::default()
+            },
+            RelocalizeConfig {
+                max_see_through: 0.0,
+                ..Default::default()
+            },
+            RelocalizeConfig {
+                max_see_through: 1.5,
                 ..Default::default()
             },
         ] {

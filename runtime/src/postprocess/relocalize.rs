@@ -99,13 +99,13 @@ pub struct RelocalizeConfig {
     /// (Cauchy loss).
     pub outlier_scale: f64,
     /// A confirmed wall that more than this fraction of the rays crossing or ending on it
-    /// (at least [`MIN_RAYS`]) see through, placed by the relocalized path, is left out of
-    /// the stage's map (1: every wall is kept).
+    /// (at least 20) see through, placed by the relocalized path, is left out of the stage's
+    /// map (1: every wall is kept).
     pub max_see_through: f64,
 }
 
 /// The fewest rays (on a wall or through it) that decide whether it is seen through.
-pub const MIN_RAYS: usize = 20;
+const MIN_RAYS: usize = 20;
 
 /// Gauss-Newton iterations of the smoothing at most.
 const CHAIN_ITERATIONS: usize = 30;

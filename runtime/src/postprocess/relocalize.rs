@@ -65,8 +65,7 @@ use super::see_through::ray_evidence;
 use super::{FinishedRun, PostProcess, PostProcessConfig, PostProcessOutput};
 use crate::error::{Result, RuntimeError};
 use crate::eval::{
-    MapQuality, RevisitConsistency, SegmentGrid, confirmed, confirmed_wall_segments, map_quality,
-    revisit_consistency,
+    MapQuality, RevisitConsistency, SegmentGrid, confirmed, map_quality, revisit_consistency,
 };
 use crate::session::Observer;
 
@@ -349,7 +348,7 @@ impl PostProcess for Relocalize {
             )));
         }
         let estimator = run.estimator;
-        let walls = confirmed_wall_segments(estimator);
+        let (ids, walls) = confirmed_walls(estimator);
         if walls.is_empty() {
             return Err(RuntimeError::Data(format!(
                 "{}: the map has no confirmed wall, nothing for relocalize to fit the scans to",
@@ -377,7 +376,8 @@ impl PostProcess for Relocalize {
             outvoted,
         } = self.place_all(&walls, &before, &covariances, run.name)?;
         let after = corrected(&before, &corrections);
-        let (map, dropped, kept) = self.without_seen_through(estimator, &after)?;
+        let (map, dropped, kept) =
+            self.without_seen_through(estimator.map(), (&ids, &walls), &after)?;
         let time_s = clock.elapsed().as_secs_f64();
         let mut metrics = self.metrics(run, &walls, &before, &after, (placed, outvoted), time_s)?;
         let points = run
@@ -474,36 +474,28 @@ impl Relocalize {
     }
 
     /// The final map without the confirmed walls that the scans, placed by `path`, see
-    /// through (more than `max_see_through` of at least [`MIN_RAYS`] rays), and what was left
-    /// out. A wall is left out with its memberships of shared corners, unless it is the last
-    /// member of one.
+    /// through (more than `max_see_through` of at least [`MIN_RAYS`] rays), what was left
+    /// out, and the walls kept; `ids` and `walls` are the map's confirmed walls. A wall is
+    /// left out with its memberships of shared corners, unless it is the last member of one.
     fn without_seen_through(
         &self,
-        estimator: &dyn Estimator<Pose2>,
+        map: &FeatureMap,
+        (ids, walls): (&[FeatureId], &[Segment]),
         path: &[(f64, Pose2)],
     ) -> Result<(FeatureMap, SeenThrough, Vec<Segment>)> {
-        let mut map = estimator.map().clone();
+        let mut map = map.clone();
         let mut dropped = SeenThrough::default();
-        let (ids, walls): (Vec<FeatureId>, Vec<Segment>) = estimator
-            .map()
-            .iter()
-            .filter(|(id, _)| confirmed(estimator, *id))
-            .filter_map(|(id, feature)| match feature.shape()? {
-                Shape::Wall { start, end } => Some((id, (start, end))),
-                _ => None,
-            })
-            .unzip();
         if self.config.max_see_through >= 1.0 {
-            return Ok((map, dropped, walls));
+            return Ok((map, dropped, walls.to_vec()));
         }
         let scans = self.scans.iter().filter_map(|scan| {
             let pose = pose_exactly_at(path, scan.time)?;
             let ends = scan.in_robot.iter().map(|p| pose.transform_point(p));
             Some((pose.transform_point(&scan.origin), ends.collect()))
         });
-        let evidence = ray_evidence(&walls, scans);
+        let evidence = ray_evidence(walls, scans);
         let mut kept = Vec::with_capacity(walls.len());
-        for ((id, (start, end)), seen) in ids.iter().zip(&walls).zip(&evidence) {
+        for ((id, (start, end)), seen) in ids.iter().zip(walls).zip(&evidence) {
             if seen.seen_through(self.config.max_see_through, MIN_RAYS)
                 && map.remove_from_shared(*id).is_ok()
             {
@@ -587,6 +579,19 @@ impl Relocalize {
             time_s,
         })
     }
+}
+
+/// The confirmed walls of the estimator's map: their ids and segments, in map order.
+fn confirmed_walls(estimator: &dyn Estimator<Pose2>) -> (Vec<FeatureId>, Vec<Segment>) {
+    estimator
+        .map()
+        .iter()
+        .filter(|(id, _)| confirmed(estimator, *id))
+        .filter_map(|(id, feature)| match feature.shape()? {
+            Shape::Wall { start, end } => Some((id, (start, end))),
+            _ => None,
+        })
+        .unzip()
 }
 
 /// Smooths the placed scans' poses (`nodes`, one per correction) and replaces each scan's

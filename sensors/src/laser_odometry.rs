@@ -28,7 +28,6 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use rustc_hash::{FxBuildHasher, FxHashMap};
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
 use slam_core::{Pose2, Pose3, wrap_angle};
@@ -252,40 +251,73 @@ fn normals(points: &[Vector2<f64>], reach: f64, reach_per_metre: f64) -> Vec<Opt
 
 /// Side of a [`Grid`] cell, m: fine enough that the nearest point of a converged match is
 /// found within the query's own cell and its eight neighbours.
-const GRID_CELL: f64 = 0.1;
+const GRID_CELL: f64 = 0.05;
 
-/// A uniform grid over reference points for nearest-neighbour queries: the points sorted by
-/// cell, and each occupied cell's range of them.
-struct Grid<'a> {
+/// Most cells a [`Grid`] lays out densely; a wider extent gets coarser cells (the search is
+/// exact for any cell size, only its speed changes).
+const MAX_GRID_CELLS: usize = 1 << 22;
+
+/// A uniform grid over reference points for nearest-neighbour queries, laid out densely over
+/// the points' bounding box: the points sorted by cell (in their own order within a cell) and
+/// each cell's range of them, so that a query costs an index, not a hash, per cell visited
+/// (most of a match's queries are far from any point in its first, wide-gated iterations).
+struct Grid {
     cell: f64,
-    /// Indices into `points`, sorted by cell.
-    order: Vec<u32>,
-    /// Each occupied cell's range in `order`.
-    cells: FxHashMap<u64, (u32, u32)>,
-    points: &'a [(Vector2<f64>, Vector2<f64>)],
+    /// The cell coordinates of cell 0 (the bounding box's lowest corner).
+    origin: (i64, i64),
+    /// Columns and rows of cells.
+    width: i64,
+    height: i64,
+    /// Cell `c`'s points are `points[starts[c]..starts[c + 1]]`.
+    starts: Vec<u32>,
+    /// The points and their unit normals, sorted by cell (contiguous for the search).
+    points: Vec<(Vector2<f64>, Vector2<f64>)>,
 }
 
-impl<'a> Grid<'a> {
-    fn new(points: &'a [(Vector2<f64>, Vector2<f64>)], cell: f64) -> Self {
-        let mut keyed: Vec<(u64, u32)> = points
-            .iter()
-            .enumerate()
-            .map(|(i, (p, _))| (Self::pack(Self::key(p, cell)), i as u32))
-            .collect();
-        keyed.sort_unstable();
-        let mut cells = FxHashMap::with_capacity_and_hasher(keyed.len() / 4, FxBuildHasher);
-        let mut first = 0;
-        for i in 1..=keyed.len() {
-            if i == keyed.len() || keyed[i].0 != keyed[first].0 {
-                cells.insert(keyed[first].0, (first as u32, i as u32));
-                first = i;
+impl Grid {
+    fn new(points: Vec<(Vector2<f64>, Vector2<f64>)>, cell: f64) -> Self {
+        let mut cell = cell;
+        loop {
+            let keys: Vec<(i64, i64)> = points.iter().map(|(p, _)| Self::key(p, cell)).collect();
+            let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
+            for &(x, y) in &keys {
+                lo = (lo.0.min(x), lo.1.min(y));
+                hi = (hi.0.max(x), hi.1.max(y));
             }
-        }
-        Grid {
-            cell,
-            order: keyed.into_iter().map(|(_, i)| i).collect(),
-            cells,
-            points,
+            let (width, height) = if keys.is_empty() {
+                (0, 0)
+            } else {
+                (hi.0 - lo.0 + 1, hi.1 - lo.1 + 1)
+            };
+            let cells = (width as u128) * (height as u128);
+            if cells > MAX_GRID_CELLS as u128 {
+                cell *= 2.0;
+                continue;
+            }
+            // A counting sort: each cell's points keep their order.
+            let mut starts = vec![0u32; cells as usize + 1];
+            let index = |(x, y): (i64, i64)| ((y - lo.1) * width + (x - lo.0)) as usize;
+            for &key in &keys {
+                starts[index(key) + 1] += 1;
+            }
+            for c in 1..starts.len() {
+                starts[c] += starts[c - 1];
+            }
+            let mut next = starts.clone();
+            let mut sorted = vec![(Vector2::zeros(), Vector2::zeros()); keys.len()];
+            for (point, &key) in points.iter().zip(&keys) {
+                let slot = &mut next[index(key)];
+                sorted[*slot as usize] = *point;
+                *slot += 1;
+            }
+            return Grid {
+                cell,
+                origin: lo,
+                width,
+                height,
+                starts,
+                points: sorted,
+            };
         }
     }
 
@@ -293,8 +325,14 @@ impl<'a> Grid<'a> {
         ((p.x / cell).floor() as i64, (p.y / cell).floor() as i64)
     }
 
-    fn pack((x, y): (i64, i64)) -> u64 {
-        ((x as u32 as u64) << 32) | (y as u32 as u64)
+    /// The range in `points` of cell `(x, y)` (empty outside the bounding box).
+    fn cell_range(&self, x: i64, y: i64) -> std::ops::Range<usize> {
+        let (column, row) = (x - self.origin.0, y - self.origin.1);
+        if column < 0 || row < 0 || column >= self.width || row >= self.height {
+            return 0..0;
+        }
+        let c = (row * self.width + column) as usize;
+        self.starts[c] as usize..self.starts[c + 1] as usize
     }
 
     /// The nearest point within `reach` of `z` whose normal passes `accept`: the cells are
@@ -305,22 +343,17 @@ impl<'a> Grid<'a> {
         z: &Vector2<f64>,
         reach: f64,
         accept: impl Fn(&Vector2<f64>) -> bool,
-    ) -> Option<&'a (Vector2<f64>, Vector2<f64>)> {
+    ) -> Option<&(Vector2<f64>, Vector2<f64>)> {
         let (cx, cy) = Self::key(z, self.cell);
         let rings = (reach / self.cell).ceil() as i64;
         let mut best: Option<(f64, usize)> = None;
         let visit = |x: i64, y: i64, best: &mut Option<(f64, usize)>| {
-            let Some(&(first, end)) = self.cells.get(&Self::pack((x, y))) else {
-                return;
-            };
-            for &i in &self.order[first as usize..end as usize] {
-                let i = i as usize;
-                let d = (self.points[i].0 - z).norm_squared();
-                if d <= reach * reach
-                    && best.is_none_or(|(b, _)| d < b)
-                    && accept(&self.points[i].1)
-                {
-                    *best = Some((d, i));
+            let range = self.cell_range(x, y);
+            let first = range.start;
+            for (k, (point, normal)) in self.points[range].iter().enumerate() {
+                let d = (point - z).norm_squared();
+                if d <= reach * reach && best.is_none_or(|(b, _)| d < b) && accept(normal) {
+                    *best = Some((d, first + k));
                 }
             }
         };
@@ -337,12 +370,32 @@ impl<'a> Grid<'a> {
                     visit(cx + ring, cy + d, &mut best);
                 }
             }
-            let cleared = ring as f64 * self.cell;
-            if best.is_some_and(|(b, _)| b <= cleared * cleared) {
+            // Every point outside the square of cells searched so far is at least as far from
+            // `z` as the square's nearest side (less a margin for rounding).
+            let cleared = self.clearance(z, (cx, cy), ring) - 1e-9;
+            if best.is_some_and(|(b, _)| cleared > 0.0 && b <= cleared * cleared) {
                 break;
             }
         }
         best.map(|(_, i)| &self.points[i])
+    }
+
+    /// The distance from `z` (in cell `(cx, cy)`) to the nearest side of the square of cells
+    /// within `ring` cells of its own: at least `ring` cells, and more unless `z` lies on
+    /// its cell's side.
+    fn clearance(&self, z: &Vector2<f64>, (cx, cy): (i64, i64), ring: i64) -> f64 {
+        let (low_x, low_y) = (
+            (cx - ring) as f64 * self.cell,
+            (cy - ring) as f64 * self.cell,
+        );
+        let (high_x, high_y) = (
+            (cx + ring + 1) as f64 * self.cell,
+            (cy + ring + 1) as f64 * self.cell,
+        );
+        (z.x - low_x)
+            .min(high_x - z.x)
+            .min(z.y - low_y)
+            .min(high_y - z.y)
     }
 }
 
@@ -377,19 +430,19 @@ pub fn match_scans(
     params: &LaserOdometryParams,
 ) -> Result<Option<ScanMatch>> {
     params.validate()?;
-    let reference = with_normals(reference, params);
+    let reference = Grid::new(with_normals(reference, params), GRID_CELL);
     match_to_points(&reference, current, guess, guess_covariance, params)
 }
 
-/// [`match_scans`] with the reference given as points with unit normals (e.g. a local map of
-/// several scans, all in one frame): `current`'s pose in that frame. With
+/// [`match_scans`] with the reference given as a grid of points with unit normals (e.g. a
+/// local map of several scans, all in one frame): `current`'s pose in that frame. With
 /// `heading_starts > 0` the same objective is minimised from the guess and from the guess
 /// turned by `±k * heading_start_step_deg` (k = 1..=K: the turns within three standard
 /// deviations of the guess's heading, at most `heading_starts`), and the lowest
 /// minimum wins: a large turn whose odometry heading is a few degrees off no longer ends in a
 /// nearby local minimum.
 fn match_to_points(
-    reference: &[(Vector2<f64>, Vector2<f64>)],
+    reference: &Grid,
     current: &[Vector2<f64>],
     guess: &Pose2,
     guess_covariance: &Matrix3<f64>,
@@ -411,7 +464,7 @@ fn match_to_points(
         guess,
         prior_information,
         params,
-        grid: Grid::new(reference, GRID_CELL),
+        grid: reference,
     };
     let step = params.heading_start_step_deg.to_radians();
     let heading_sigma = guess_covariance[(2, 2)].max(0.0).sqrt();
@@ -471,7 +524,7 @@ struct MatchProblem<'a> {
     guess: &'a Pose2,
     prior_information: Matrix3<f64>,
     params: &'a LaserOdometryParams,
-    grid: Grid<'a>,
+    grid: &'a Grid,
 }
 
 /// A local minimum of a [`MatchProblem`].
@@ -674,6 +727,9 @@ struct Chain {
     chain_from_previous: Pose2,
     /// The key scans: sensor pose and points with normals in the sensor frame, oldest first.
     key_scans: VecDeque<KeyScan>,
+    /// The key scans' points in the chain frame, gridded: built when a match first needs it
+    /// and kept until the key scans change (most scans are not key scans).
+    local_map: Option<Grid>,
 }
 
 /// A key scan: its sensor pose in the chain frame, and its points with their normals in its
@@ -691,6 +747,7 @@ impl Chain {
             robot_from_sensor,
             chain_from_previous: Pose2::identity(),
             key_scans: VecDeque::new(),
+            local_map: None,
         };
         chain.add_key_scan(Pose2::identity(), points, params);
         chain
@@ -708,6 +765,7 @@ impl Chain {
         while self.key_scans.len() > params.local_map_scans {
             self.key_scans.pop_front();
         }
+        self.local_map = None;
     }
 
     /// Whether a scan at `chain_from_sensor` is far enough from the last key scan to be one.
@@ -719,17 +777,21 @@ impl Chain {
         })
     }
 
-    /// The key scans' points and normals in the chain frame.
-    fn local_map(&self) -> Vec<(Vector2<f64>, Vector2<f64>)> {
-        self.key_scans
-            .iter()
-            .flat_map(|(pose, points)| {
-                let rotation = pose.rotation();
-                points
-                    .iter()
-                    .map(move |(p, n)| (pose.transform_point(p), rotation * n))
-            })
-            .collect()
+    /// The key scans' points and normals in the chain frame, gridded.
+    fn local_map(&mut self) -> &Grid {
+        let key_scans = &self.key_scans;
+        self.local_map.get_or_insert_with(|| {
+            let points = key_scans
+                .iter()
+                .flat_map(|(pose, points)| {
+                    let rotation = pose.rotation();
+                    points
+                        .iter()
+                        .map(move |(p, n)| (pose.transform_point(p), rotation * n))
+                })
+                .collect();
+            Grid::new(points, GRID_CELL)
+        })
     }
 }
 
@@ -850,13 +912,13 @@ fn interval_odometry(
 /// prior; with the current scan's sensor pose in the chain frame. `None` if the match is
 /// refused.
 fn match_to_local_map(
-    chain: &Chain,
+    chain: &mut Chain,
     current: &[Vector2<f64>],
     odometry: &Pose2,
     odometry_covariance: &Matrix3<f64>,
     params: &LaserOdometryParams,
 ) -> Result<Option<(PoseIncrement, Pose2)>> {
-    let robot_from_sensor = &chain.robot_from_sensor;
+    let robot_from_sensor = chain.robot_from_sensor;
     let odometry = *odometry;
     let odometry_covariance = *odometry_covariance;
     let (sensor_motion, d_sensor_motion) = conjugate(&robot_from_sensor.inverse(), &odometry);
@@ -866,7 +928,7 @@ fn match_to_local_map(
     let d_guess = d_guess * d_sensor_motion;
     let guess_covariance = d_guess * odometry_covariance * d_guess.transpose();
     let Some(matched) = match_to_points(
-        &chain.local_map(),
+        chain.local_map(),
         current,
         &guess,
         &guess_covariance,
@@ -879,7 +941,7 @@ fn match_to_local_map(
     let (matched_motion, _, d_matched_motion) = chain
         .chain_from_previous
         .between_with_jacobians(&chain_from_current);
-    let (increment, d_increment) = conjugate(robot_from_sensor, &matched_motion);
+    let (increment, d_increment) = conjugate(&robot_from_sensor, &matched_motion);
     let d_increment = d_increment * d_matched_motion;
     let covariance = d_increment * matched.covariance * d_increment.transpose();
     let difference = Vector3::new(

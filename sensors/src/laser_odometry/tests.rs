@@ -359,7 +359,7 @@ fn the_normal_check_keeps_the_match_and_refuses_crossed_surfaces() {
             guess: &turned,
             prior_information: Matrix3::identity(),
             params,
-            grid: Grid::new(&reference, GRID_CELL),
+            grid: &Grid::new(reference.clone(), GRID_CELL),
         };
         problem.minimise(turned, 2, 3).map_or(0, |m| m.matched)
     };
@@ -448,10 +448,56 @@ proptest! {
             .filter(|(p, n)| (p - z).norm() <= reach && accept(n))
             .map(|(p, _)| (p - z).norm())
             .fold(None, |best: Option<f64>, d| Some(best.map_or(d, |b| b.min(d))));
-        let grid = Grid::new(&points, GRID_CELL);
+        let grid = Grid::new(points.clone(), GRID_CELL);
         let found = grid.nearest(&z, reach, accept).map(|(p, _)| (p - z).norm());
         prop_assert_eq!(found, full);
     }
+}
+
+/// Points spread wider than the densest layout allows get coarser cells, and the search
+/// still finds the nearest point.
+#[test]
+fn a_wide_grid_coarsens_its_cells_and_still_finds_the_nearest_point() {
+    let normal = Vector2::new(1.0, 0.0);
+    let points = vec![
+        (Vector2::new(0.0, 0.0), normal),
+        (Vector2::new(0.03, 0.04), normal),
+        (Vector2::new(5.0e5, -5.0e5), normal),
+    ];
+    let grid = Grid::new(points, GRID_CELL);
+    assert!(grid.cell > GRID_CELL, "{}", grid.cell);
+    assert!((grid.width * grid.height) as usize <= MAX_GRID_CELLS);
+    let z = Vector2::new(0.05, 0.05);
+    let (nearest, _) = grid.nearest(&z, 0.3, |_| true).unwrap();
+    assert_eq!(*nearest, Vector2::new(0.03, 0.04));
+    assert!(
+        grid.nearest(&Vector2::new(3.0, 3.0), 0.3, |_| true)
+            .is_none()
+    );
+}
+
+/// The chain's gridded local map is kept between matches and rebuilt when a key scan joins.
+#[test]
+fn the_local_map_follows_the_key_scans() {
+    let params = LaserOdometryParams {
+        local_map_scans: 2,
+        ..LaserOdometryParams::default()
+    };
+    let first = scan(&Pose2::new(2.0, 3.0, 0.1));
+    let second = scan(&Pose2::new(2.5, 3.0, 0.1));
+    let count = |points: &[Vector2<f64>]| with_normals(points, &params).len();
+    let mut chain = Chain::new(Pose2::identity(), &first, &params);
+    assert_eq!(chain.local_map().points.len(), count(&first));
+    chain.add_key_scan(Pose2::new(0.5, 0.0, 0.0), &second, &params);
+    assert_eq!(
+        chain.local_map().points.len(),
+        count(&first) + count(&second)
+    );
+    chain.add_key_scan(Pose2::new(1.0, 0.0, 0.0), &first, &params);
+    assert_eq!(
+        chain.local_map().points.len(),
+        count(&second) + count(&first)
+    );
 }
 
 #[test]

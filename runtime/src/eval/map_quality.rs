@@ -348,50 +348,59 @@ impl<'a> SegmentGrid<'a> {
 
     /// Distance from `p` to the nearest wall.
     fn distance(&self, p: &Vector2<f64>) -> f64 {
-        let (cx, cy) = (
-            (p.x / self.cell).floor() as i64,
-            (p.y / self.cell).floor() as i64,
-        );
+        let centre = self.key(p);
         let mut best = f64::INFINITY;
         let reach = (self.hi.0 - self.lo.0)
             .max(self.hi.1 - self.lo.1)
-            .max((cx - self.lo.0).abs())
-            .max((cx - self.hi.0).abs())
-            .max((cy - self.lo.1).abs())
-            .max((cy - self.hi.1).abs());
+            .max((centre.0 - self.lo.0).abs())
+            .max((centre.0 - self.hi.0).abs())
+            .max((centre.1 - self.lo.1).abs())
+            .max((centre.1 - self.hi.1).abs());
         for ring in 0..=reach {
-            // Every wall in ring r lies at least (r - 1) cells away.
-            if (ring as f64 - 1.0) * self.cell > best {
-                break;
-            }
-            for (x, y) in ring_cells(cx, cy, ring) {
-                if let Some(members) = self.cells.get(&(x, y)) {
-                    for &k in members {
-                        let (a, b) = &self.walls[k];
-                        best = best.min(point_to_segment(p, a, b));
-                    }
+            for (x, y) in ring_cells(centre.0, centre.1, ring) {
+                for &k in self.cells.get(&(x, y)).into_iter().flatten() {
+                    let (a, b) = &self.walls[k];
+                    best = best.min(point_to_segment(p, a, b));
                 }
+            }
+            if best <= self.clearance(p, centre, ring) {
+                break;
             }
         }
         best
+    }
+
+    /// The cell of `p`.
+    fn key(&self, p: &Vector2<f64>) -> (i64, i64) {
+        (
+            (p.x / self.cell).floor() as i64,
+            (p.y / self.cell).floor() as i64,
+        )
+    }
+
+    /// How near a wall outside the square of cells within `ring` of `p`'s cell `centre` can
+    /// be: the distance to the square's nearest side (less a margin for rounding). A wall is
+    /// binned in every cell it passes through, so one that none of those cells holds lies
+    /// outside the square.
+    fn clearance(&self, p: &Vector2<f64>, centre: (i64, i64), ring: i64) -> f64 {
+        let low = |c: i64| (c - ring) as f64 * self.cell;
+        let high = |c: i64| (c + ring + 1) as f64 * self.cell;
+        (p.x - low(centre.0))
+            .min(high(centre.0) - p.x)
+            .min(p.y - low(centre.1))
+            .min(high(centre.1) - p.y)
+            - 1e-9
     }
 }
 
 impl SegmentGrid<'_> {
     /// The wall nearest to `p` if it lies within `reach` (m), with its distance.
     pub(crate) fn nearest_within(&self, p: &Vector2<f64>, reach: f64) -> Option<(usize, f64)> {
-        let (cx, cy) = (
-            (p.x / self.cell).floor() as i64,
-            (p.y / self.cell).floor() as i64,
-        );
+        let centre = self.key(p);
         let rings = (reach / self.cell).ceil() as i64 + 1;
         let mut best: Option<(usize, f64)> = None;
         for ring in 0..=rings {
-            let found = best.map_or(reach, |(_, d)| d);
-            if (ring as f64 - 1.0) * self.cell > found {
-                break;
-            }
-            for (x, y) in ring_cells(cx, cy, ring) {
+            for (x, y) in ring_cells(centre.0, centre.1, ring) {
                 for &k in self.cells.get(&(x, y)).into_iter().flatten() {
                     let (a, b) = &self.walls[k];
                     let distance = point_to_segment(p, a, b);
@@ -400,26 +409,27 @@ impl SegmentGrid<'_> {
                     }
                 }
             }
+            if best.map_or(reach, |(_, d)| d) <= self.clearance(p, centre, ring) {
+                break;
+            }
         }
         best
     }
 }
 
-/// The cells at Chebyshev distance `ring` from `(cx, cy)`.
-fn ring_cells(cx: i64, cy: i64, ring: i64) -> Vec<(i64, i64)> {
-    if ring == 0 {
-        return vec![(cx, cy)];
-    }
-    let mut cells = Vec::with_capacity(8 * ring as usize);
-    for d in -ring..=ring {
-        cells.push((cx + d, cy - ring));
-        cells.push((cx + d, cy + ring));
-    }
-    for d in -ring + 1..ring {
-        cells.push((cx - ring, cy + d));
-        cells.push((cx + ring, cy + d));
-    }
-    cells
+/// The cells at Chebyshev distance `ring` from `(cx, cy)`: the bottom and top rows in pairs,
+/// then the left and right columns.
+fn ring_cells(cx: i64, cy: i64, ring: i64) -> impl Iterator<Item = (i64, i64)> {
+    let (rows, columns) = if ring == 0 {
+        (1..=0, 1..0)
+    } else {
+        (-ring..=ring, 1 - ring..ring)
+    };
+    (ring == 0)
+        .then_some((cx, cy))
+        .into_iter()
+        .chain(rows.flat_map(move |d| [(cx + d, cy - ring), (cx + d, cy + ring)]))
+        .chain(columns.flat_map(move |d| [(cx - ring, cy + d), (cx + ring, cy + d)]))
 }
 
 #[cfg(test)]

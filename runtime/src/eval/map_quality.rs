@@ -420,16 +420,21 @@ impl SegmentGrid<'_> {
 /// The cells at Chebyshev distance `ring` from `(cx, cy)`: the bottom and top rows in pairs,
 /// then the left and right columns.
 fn ring_cells(cx: i64, cy: i64, ring: i64) -> impl Iterator<Item = (i64, i64)> {
-    let (rows, columns) = if ring == 0 {
-        (1..=0, 1..0)
-    } else {
-        (-ring..=ring, 1 - ring..ring)
-    };
+    // Cells in a row of the ring (none in ring 0, which is the centre alone).
+    let span = if ring == 0 { 0 } else { 2 * ring + 1 };
+    let rows = (0..span).flat_map(move |i| {
+        let d = i - ring;
+        [(cx + d, cy - ring), (cx + d, cy + ring)]
+    });
+    let columns = (0..span - 2).flat_map(move |i| {
+        let d = i + 1 - ring;
+        [(cx - ring, cy + d), (cx + ring, cy + d)]
+    });
     (ring == 0)
         .then_some((cx, cy))
         .into_iter()
-        .chain(rows.flat_map(move |d| [(cx + d, cy - ring), (cx + d, cy + ring)]))
-        .chain(columns.flat_map(move |d| [(cx - ring, cy + d), (cx + ring, cy + d)]))
+        .chain(rows)
+        .chain(columns)
 }
 
 #[cfg(test)]
@@ -438,6 +443,21 @@ mod tests {
 
     fn v(x: f64, y: f64) -> Vector2<f64> {
         Vector2::new(x, y)
+    }
+
+    #[test]
+    fn a_ring_lists_each_of_its_cells_once() {
+        for ring in 0..5i64 {
+            let cells: Vec<_> = ring_cells(3, -2, ring).collect();
+            let distinct: std::collections::HashSet<_> = cells.iter().collect();
+            assert_eq!(cells.len(), (8 * ring).max(1) as usize);
+            assert_eq!(distinct.len(), cells.len());
+            assert!(
+                cells
+                    .iter()
+                    .all(|&(x, y)| (x - 3).abs().max((y + 2).abs()) == ring)
+            );
+        }
     }
 
     #[test]

@@ -542,7 +542,11 @@ impl<'a> MatchProblem<'a> {
     fn minimise(&self, start: Pose2, first: usize, end: usize) -> Option<Minimum> {
         let params = self.params;
         let mut pose = start;
-        let mut last: Option<(Matrix3<f64>, usize, f64)> = None;
+        let mut last: Option<(Matrix3<f64>, usize)> = None;
+        // The objective of the last iteration, summed once the loop ends: the prior's term,
+        // the loss's scale and weight, and each point's residual (the gate if unpaired).
+        let mut objective = (0.0, 1.0, 1.0);
+        let mut residuals = Vec::with_capacity(self.current.len());
         for iteration in first..end {
             let level = iteration.min(2);
             let widening = 4.0 * 0.5f64.powi(level as i32);
@@ -557,8 +561,12 @@ impl<'a> MatchProblem<'a> {
             );
             let mut h = self.prior_information;
             let mut g = self.prior_information * offset;
-            let rho = |e: f64| 0.5 * weight * scale * scale * (1.0 + (e / scale).powi(2)).ln();
-            let mut cost = 0.5 * offset.dot(&(self.prior_information * offset));
+            objective = (
+                0.5 * offset.dot(&(self.prior_information * offset)),
+                scale,
+                weight,
+            );
+            residuals.clear();
             let mut matched = 0;
             for (p, own_normal) in self.current.iter().zip(&self.current_normals) {
                 let arm = rotation * p;
@@ -568,12 +576,12 @@ impl<'a> MatchProblem<'a> {
                     own_normal.is_none_or(|own| own.dot(n).abs() >= self.min_normal_cosine)
                 };
                 let Some((q, normal)) = self.grid.nearest(&z, gate, compatible) else {
-                    cost += rho(gate);
+                    residuals.push(gate);
                     continue;
                 };
                 matched += 1;
                 let e = normal.dot(&(z - q));
-                cost += rho(e);
+                residuals.push(e);
                 let robust = 1.0 / (1.0 + (e / scale).powi(2));
                 let j = Vector3::new(normal.x, normal.y, normal.dot(&perp(&arm)));
                 h += j * j.transpose() * (robust * weight);
@@ -584,13 +592,16 @@ impl<'a> MatchProblem<'a> {
             }
             let cholesky = h.cholesky()?;
             let step = -cholesky.solve(&g);
-            last = Some((h, matched, cost));
+            last = Some((h, matched));
             pose = Pose2::new(pose.x + step.x, pose.y + step.y, pose.theta + step.z);
             if widening == 1.0 && step.xy().norm() < 1e-6 && step.z.abs() < 1e-7 {
                 break;
             }
         }
-        let (information, matched, cost) = last?;
+        let (information, matched) = last?;
+        let (prior_cost, scale, weight) = objective;
+        let rho = |e: f64| 0.5 * weight * scale * scale * (1.0 + (e / scale).powi(2)).ln();
+        let cost = residuals.iter().fold(prior_cost, |cost, &e| cost + rho(e));
         Some(Minimum {
             pose,
             information,
@@ -784,10 +795,11 @@ impl Chain {
             let points = key_scans
                 .iter()
                 .flat_map(|(pose, points)| {
-                    let rotation = pose.rotation();
+                    // `pose.transform_point`, its rotation computed once per key scan.
+                    let (rotation, translation) = (pose.rotation(), pose.translation());
                     points
                         .iter()
-                        .map(move |(p, n)| (pose.transform_point(p), rotation * n))
+                        .map(move |(p, n)| (rotation * p + translation, rotation * n))
                 })
                 .collect();
             Grid::new(points, GRID_CELL)

@@ -253,8 +253,11 @@ fn normals(points: &[Vector2<f64>], reach: f64, reach_per_metre: f64) -> Vec<Opt
 /// found within the query's own cell and its eight neighbours.
 const GRID_CELL: f64 = 0.05;
 
-/// Most cells a [`Grid`] lays out densely; a wider extent gets coarser cells (the search is
-/// exact for any cell size, only its speed changes).
+/// Most cells a [`Grid`] lays out densely, per point and in all; a wider extent gets
+/// coarser cells (the search is exact for any cell size, only its speed changes). Laying out
+/// the cells costs their number: a sparse log's key scans, far apart, would otherwise make a
+/// grid mostly of empty cells at every scan.
+const MAX_GRID_CELLS_PER_POINT: usize = 32;
 const MAX_GRID_CELLS: usize = 1 << 22;
 
 /// A uniform grid over reference points for nearest-neighbour queries, laid out densely over
@@ -290,7 +293,8 @@ impl Grid {
                 (hi.0 - lo.0 + 1, hi.1 - lo.1 + 1)
             };
             let cells = (width as u128) * (height as u128);
-            if cells > MAX_GRID_CELLS as u128 {
+            let most = (MAX_GRID_CELLS_PER_POINT * points.len()).clamp(1 << 12, MAX_GRID_CELLS);
+            if cells > most as u128 {
                 cell *= 2.0;
                 continue;
             }

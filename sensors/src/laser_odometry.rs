@@ -265,6 +265,8 @@ const MAX_GRID_CELLS: usize = 1 << 22;
 /// each cell's range of them, so that a query costs an index, not a hash, per cell visited
 /// (most of a match's queries are far from any point in its first, wide-gated iterations).
 struct Grid {
+    /// The cell side asked for; `cell` is coarser for a wide extent.
+    fine_cell: f64,
     cell: f64,
     /// The cell coordinates of cell 0 (the bounding box's lowest corner).
     origin: (i64, i64),
@@ -275,53 +277,82 @@ struct Grid {
     starts: Vec<u32>,
     /// The points and their unit normals, sorted by cell (contiguous for the search).
     points: Vec<(Vector2<f64>, Vector2<f64>)>,
+    /// Scratch of [`Grid::fill`], kept for the next fill (a local map is gridded again at
+    /// every key scan): the points in their given order, their cells and the sort's cursors.
+    unsorted: Vec<(Vector2<f64>, Vector2<f64>)>,
+    keys: Vec<(i64, i64)>,
+    next: Vec<u32>,
 }
 
 impl Grid {
     fn new(points: Vec<(Vector2<f64>, Vector2<f64>)>, cell: f64) -> Self {
-        let mut cell = cell;
+        let mut grid = Grid {
+            fine_cell: cell,
+            cell,
+            origin: (0, 0),
+            width: 0,
+            height: 0,
+            starts: vec![0],
+            points: Vec::new(),
+            unsorted: Vec::new(),
+            keys: Vec::new(),
+            next: Vec::new(),
+        };
+        grid.fill(points);
+        grid
+    }
+
+    /// Grids `points` in place of the previous ones, reusing the memory.
+    fn fill(&mut self, points: impl IntoIterator<Item = (Vector2<f64>, Vector2<f64>)>) {
+        self.unsorted.clear();
+        self.unsorted.extend(points);
+        let mut cell = self.fine_cell;
         loop {
-            let keys: Vec<(i64, i64)> = points.iter().map(|(p, _)| Self::key(p, cell)).collect();
+            self.keys.clear();
+            self.keys
+                .extend(self.unsorted.iter().map(|(p, _)| Self::key(p, cell)));
             let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
-            for &(x, y) in &keys {
+            for &(x, y) in &self.keys {
                 lo = (lo.0.min(x), lo.1.min(y));
                 hi = (hi.0.max(x), hi.1.max(y));
             }
-            let (width, height) = if keys.is_empty() {
+            let (width, height) = if self.keys.is_empty() {
                 (0, 0)
             } else {
                 (hi.0 - lo.0 + 1, hi.1 - lo.1 + 1)
             };
             let cells = (width as u128) * (height as u128);
-            let most = (MAX_GRID_CELLS_PER_POINT * points.len()).clamp(1 << 12, MAX_GRID_CELLS);
+            let most =
+                (MAX_GRID_CELLS_PER_POINT * self.unsorted.len()).clamp(1 << 12, MAX_GRID_CELLS);
             if cells > most as u128 {
                 cell *= 2.0;
                 continue;
             }
             // A counting sort: each cell's points keep their order.
-            let mut starts = vec![0u32; cells as usize + 1];
+            self.starts.clear();
+            self.starts.resize(cells as usize + 1, 0);
             let index = |(x, y): (i64, i64)| ((y - lo.1) * width + (x - lo.0)) as usize;
-            for &key in &keys {
-                starts[index(key) + 1] += 1;
+            for &key in &self.keys {
+                self.starts[index(key) + 1] += 1;
             }
-            for c in 1..starts.len() {
-                starts[c] += starts[c - 1];
+            for c in 1..self.starts.len() {
+                self.starts[c] += self.starts[c - 1];
             }
-            let mut next = starts.clone();
-            let mut sorted = vec![(Vector2::zeros(), Vector2::zeros()); keys.len()];
-            for (point, &key) in points.iter().zip(&keys) {
-                let slot = &mut next[index(key)];
-                sorted[*slot as usize] = *point;
+            self.next.clear();
+            self.next.extend_from_slice(&self.starts);
+            self.points.clear();
+            self.points
+                .resize(self.keys.len(), (Vector2::zeros(), Vector2::zeros()));
+            for (point, &key) in self.unsorted.iter().zip(&self.keys) {
+                let slot = &mut self.next[index(key)];
+                self.points[*slot as usize] = *point;
                 *slot += 1;
             }
-            return Grid {
-                cell,
-                origin: lo,
-                width,
-                height,
-                starts,
-                points: sorted,
-            };
+            self.cell = cell;
+            self.origin = lo;
+            self.width = width;
+            self.height = height;
+            return;
         }
     }
 
@@ -742,9 +773,11 @@ struct Chain {
     chain_from_previous: Pose2,
     /// The key scans: sensor pose and points with normals in the sensor frame, oldest first.
     key_scans: VecDeque<KeyScan>,
-    /// The key scans' points in the chain frame, gridded: built when a match first needs it
-    /// and kept until the key scans change (most scans are not key scans).
-    local_map: Option<Grid>,
+    /// The key scans' points in the chain frame, gridded when a match first needs them after
+    /// the key scans change (most scans are not key scans).
+    local_map: Grid,
+    /// Whether `local_map` is out of date.
+    local_map_stale: bool,
 }
 
 /// A key scan: its sensor pose in the chain frame, and its points with their normals in its
@@ -762,7 +795,8 @@ impl Chain {
             robot_from_sensor,
             chain_from_previous: Pose2::identity(),
             key_scans: VecDeque::new(),
-            local_map: None,
+            local_map: Grid::new(Vec::new(), GRID_CELL),
+            local_map_stale: true,
         };
         chain.add_key_scan(Pose2::identity(), points, params);
         chain
@@ -780,7 +814,7 @@ impl Chain {
         while self.key_scans.len() > params.local_map_scans {
             self.key_scans.pop_front();
         }
-        self.local_map = None;
+        self.local_map_stale = true;
     }
 
     /// Whether a scan at `chain_from_sensor` is far enough from the last key scan to be one.
@@ -794,20 +828,18 @@ impl Chain {
 
     /// The key scans' points and normals in the chain frame, gridded.
     fn local_map(&mut self) -> &Grid {
-        let key_scans = &self.key_scans;
-        self.local_map.get_or_insert_with(|| {
-            let points = key_scans
-                .iter()
-                .flat_map(|(pose, points)| {
-                    // `pose.transform_point`, its rotation computed once per key scan.
-                    let (rotation, translation) = (pose.rotation(), pose.translation());
-                    points
-                        .iter()
-                        .map(move |(p, n)| (rotation * p + translation, rotation * n))
-                })
-                .collect();
-            Grid::new(points, GRID_CELL)
-        })
+        if self.local_map_stale {
+            let points = self.key_scans.iter().flat_map(|(pose, points)| {
+                // `pose.transform_point`, its rotation computed once per key scan.
+                let (rotation, translation) = (pose.rotation(), pose.translation());
+                points
+                    .iter()
+                    .map(move |(p, n)| (rotation * p + translation, rotation * n))
+            });
+            self.local_map.fill(points);
+            self.local_map_stale = false;
+        }
+        &self.local_map
     }
 }
 

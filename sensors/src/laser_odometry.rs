@@ -8,7 +8,9 @@
 //! - the reference points `q_i` are the previous scan's, each with the normal of the line
 //!   through it and its neighbours in beam order;
 //! - each current point `p_i` is paired with its nearest reference point within a gate; the
-//!   residual is the distance along that point's normal; `rho` is the Cauchy loss;
+//!   residual is the distance along that point's normal; `rho` is the Cauchy loss; the
+//!   nearest point is found exactly, in a uniform grid laid out densely over the reference
+//!   points (gridded again only when the local map changes, at a key scan);
 //! - coarse to fine: the gate and the Cauchy scale start 4 times wider and halve at each
 //!   iteration;
 //! - the points' information is divided by `information_divisor`: neighbouring beams see the

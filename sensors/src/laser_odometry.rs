@@ -318,18 +318,23 @@ impl Grid {
                 lo = (lo.0.min(x), lo.1.min(y));
                 hi = (hi.0.max(x), hi.1.max(y));
             }
+            // Wide enough to hold any extent (far-apart points make the i64 span overflow).
             let (width, height) = if self.keys.is_empty() {
                 (0, 0)
             } else {
-                (hi.0 - lo.0 + 1, hi.1 - lo.1 + 1)
+                (
+                    hi.0 as i128 - lo.0 as i128 + 1,
+                    hi.1 as i128 - lo.1 as i128 + 1,
+                )
             };
-            let cells = (width as u128) * (height as u128);
             let most =
                 (MAX_GRID_CELLS_PER_POINT * self.unsorted.len()).clamp(1 << 12, MAX_GRID_CELLS);
-            if cells > most as u128 {
+            if width as f64 * height as f64 > most as f64 {
                 cell *= 2.0;
                 continue;
             }
+            let (width, height) = (width as i64, height as i64);
+            let cells = width * height;
             // A counting sort: each cell's points keep their order.
             self.starts.clear();
             self.starts.resize(cells as usize + 1, 0);

@@ -476,6 +476,22 @@ fn a_wide_grid_coarsens_its_cells_and_still_finds_the_nearest_point() {
     );
 }
 
+/// Points as far apart as floating point allows are gridded without overflow.
+#[test]
+fn points_at_the_ends_of_the_number_range_are_gridded() {
+    let normal = Vector2::new(0.0, 1.0);
+    let points = vec![
+        (Vector2::new(-1e300, 1e300), normal),
+        (Vector2::new(1e300, -1e300), normal),
+        (Vector2::new(1.0, 2.0), normal),
+    ];
+    let grid = Grid::new(points, GRID_CELL);
+    let (nearest, _) = grid
+        .nearest(&Vector2::new(1.0, 2.1), 0.3, |_| true)
+        .unwrap();
+    assert_eq!(*nearest, Vector2::new(1.0, 2.0));
+}
+
 /// The chain's gridded local map is kept between matches and rebuilt when a key scan joins.
 #[test]
 fn the_local_map_follows_the_key_scans() {

@@ -105,7 +105,7 @@ fn scan(walls: &[Wall], heading: f64, draw: u64) -> Vec<Observation> {
             let point = range * Vector2::new(bearing.cos(), bearing.sin());
             Observation {
                 robot_from_sensor: Pose3::identity(),
-                measurement: Box::new(LinePoint::new(point, SIGMA_RANGE).expect("a scan point")),
+                measurement: Arc::new(LinePoint::new(point, SIGMA_RANGE).expect("a scan point")),
                 landmark_id: None,
             }
         })

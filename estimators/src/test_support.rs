@@ -3,6 +3,7 @@
 use slam_core::nalgebra::{Matrix2, Vector2};
 use slam_core::{Observation, Pose3};
 use slam_sensors::models::WallObservation;
+use std::sync::Arc;
 
 /// A wall seen from the origin along `y = offset`, from `x = a` to `x = b`.
 pub(crate) fn wall_sighting(offset: f64, a: f64, b: f64) -> Observation {
@@ -35,7 +36,7 @@ pub(crate) fn segment_sighting(
     let measurement = WallObservation::from_segment(a, b, covariance, real, [0.05, 0.05]).unwrap();
     Observation {
         robot_from_sensor: Pose3::identity(),
-        measurement: Box::new(measurement),
+        measurement: Arc::new(measurement),
         landmark_id: None,
     }
 }

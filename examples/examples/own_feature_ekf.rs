@@ -7,6 +7,7 @@ use slam_core::*;
 use slam_runtime::frontend::{FeaturesFrontendConfig, FrontendConfig, SensorInfo};
 use slam_runtime::{EstimatorConfig, Session, Start, eval::map_error_against_landmarks};
 use slam_sensors::{Event, TimedEvent, models::RangeBearing, sim};
+use std::sync::Arc;
 
 const XY: Subspace = Subspace {
     name: "xy",
@@ -71,7 +72,7 @@ fn as_beacons(mut event: TimedEvent) -> TimedEvent {
     if let Event::Observations(observations) = &mut event.event {
         for o in observations.iter_mut() {
             if let Some(rb) = o.measurement.as_any().downcast_ref::<RangeBearing>() {
-                o.measurement = Box::new(Sighting(rb.clone()));
+                o.measurement = Arc::new(Sighting(rb.clone()));
             }
         }
     }

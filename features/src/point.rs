@@ -1,7 +1,7 @@
 //! The point: one 3-D point (paper section IV-E), e.g. a ceiling lamp or a landmark.
 
 use serde::{Deserialize, Serialize};
-use slam_core::nalgebra::{DMatrix, DVector, Vector3};
+use slam_core::nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use slam_core::{
     Coincidence, CoordBlock, Coordinates, Error, Feature, Growth, Ink, Mark, Result, Shape, Sketch,
     Subspace, downcast_feature, stack_rows,
@@ -118,6 +118,48 @@ impl Point {
         let mut point = Point::new(position)?;
         point.active = vec![PointSubspace::Horizontal];
         Ok(point)
+    }
+
+    /// Whether the subspace named `name` ([`HORIZONTAL`], [`HEIGHT`]) is in the M-space,
+    /// without listing the subspaces.
+    ///
+    /// ```
+    /// use slam_features::point::{Point, HEIGHT, HORIZONTAL};
+    /// let landmark = Point::planar(slam_core::nalgebra::Vector3::new(2.0, 1.0, 0.0)).unwrap();
+    /// assert!(landmark.is_active(HORIZONTAL.name) && !landmark.is_active(HEIGHT.name));
+    /// ```
+    pub fn is_active(&self, name: &str) -> bool {
+        self.active.iter().any(|s| s.spec().name == name)
+    }
+
+    /// `B~` on the stack: its first [`Feature::mspace_dim`] columns are
+    /// [`Feature::dual`]'s, the rest zero (a range-bearing filter's hot path takes them
+    /// without an allocation).
+    ///
+    /// ```
+    /// use slam_core::Feature;
+    /// use slam_features::point::Point;
+    /// let landmark = Point::planar(slam_core::nalgebra::Vector3::new(2.0, 1.0, 0.0)).unwrap();
+    /// let (dual, dim) = landmark.dual_columns();
+    /// assert_eq!(dual.columns(0, dim), landmark.dual().unwrap());
+    /// ```
+    pub fn dual_columns(&self) -> (Matrix3<f64>, usize) {
+        let mut dual = Matrix3::zeros();
+        let mut column = 0;
+        for subspace in &self.active {
+            match subspace {
+                PointSubspace::Horizontal => {
+                    dual[(0, column)] = 1.0;
+                    dual[(1, column + 1)] = 1.0;
+                    column += 2;
+                }
+                PointSubspace::Height => {
+                    dual[(2, column)] = 1.0;
+                    column += 1;
+                }
+            }
+        }
+        (dual, column)
     }
 
     /// The position.
@@ -240,22 +282,8 @@ impl Feature for Point {
     /// `B^T`, written directly: B is made of unit rows (one column of B~ per active
     /// coordinate), and this runs for every observation of a point.
     fn dual(&self) -> Result<DMatrix<f64>> {
-        let mut dual = DMatrix::zeros(3, self.mspace_dim());
-        let mut column = 0;
-        for subspace in &self.active {
-            match subspace {
-                PointSubspace::Horizontal => {
-                    dual[(0, column)] = 1.0;
-                    dual[(1, column + 1)] = 1.0;
-                    column += 2;
-                }
-                PointSubspace::Height => {
-                    dual[(2, column)] = 1.0;
-                    column += 1;
-                }
-            }
-        }
-        Ok(dual)
+        let (dual, dim) = self.dual_columns();
+        Ok(DMatrix::from_fn(3, dim, |i, j| dual[(i, j)]))
     }
 
     /// `x_f += B~ dx_p` without forming B~: its rows are unit rows (the hot path of a

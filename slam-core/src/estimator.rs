@@ -3,6 +3,7 @@
 //! M-space feature representation is orthogonal to the choice of SLAM algorithm").
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
@@ -13,25 +14,17 @@ use crate::measurement::DynMeasurementModel;
 use crate::motion::MotionModel;
 use crate::pose::{Pose3, RobotPose};
 
-/// One measurement taken by one sensor.
-#[derive(Debug)]
+/// One measurement taken by one sensor. The measurement is shared, not copied, when the
+/// observation is cloned (a front-end passing on given observations, an estimator keeping a
+/// view): cloning allocates nothing.
+#[derive(Clone, Debug)]
 pub struct Observation {
     /// Where the sensor sits on the robot, `x_r,s` (eq. 17).
     pub robot_from_sensor: Pose3,
     /// The measured values with their model.
-    pub measurement: Box<dyn DynMeasurementModel>,
+    pub measurement: Arc<dyn DynMeasurementModel>,
     /// The true landmark identity when the data provide it (known data association).
     pub landmark_id: Option<u64>,
-}
-
-impl Clone for Observation {
-    fn clone(&self) -> Self {
-        Observation {
-            robot_from_sensor: self.robot_from_sensor,
-            measurement: self.measurement.clone_box(),
-            landmark_id: self.landmark_id,
-        }
-    }
 }
 
 /// What an estimator or front-end left out, counted by reason (a failed linearization, a

@@ -567,26 +567,46 @@ impl FeatureMap {
         measurement: &dyn DynMeasurementModel,
         frame: &SensorFrame,
     ) -> Result<MapLinearization> {
-        let feature = self.get(id)?;
-        let mut lin = linearize_at(measurement, feature, frame)?;
+        let lin = linearize_at(measurement, self.get(id)?, frame)?;
         let mut columns = Vec::with_capacity(1 + lin.d_eta_d_shared.len());
-        if feature.mspace_dim() > 0 {
-            columns.push((RowOwner::Feature(id), lin.d_eta_d_own.clone()));
-        }
-        for (block, d) in std::mem::take(&mut lin.d_eta_d_shared) {
-            let shared = self.links[id.0][block].ok_or_else(|| {
-                Error::Sharing(format!(
-                    "feature {} says block {block} is shared but the map has no link",
-                    id.0
-                ))
-            })?;
-            columns.push((RowOwner::Shared(shared), d.clone()));
-            lin.d_eta_d_shared.push((block, d));
-        }
+        self.visit_columns(id, &lin, |owner, d| {
+            columns.push((owner, d.clone()));
+            Ok(())
+        })?;
         Ok(MapLinearization {
             measurement: lin,
             columns,
         })
+    }
+
+    /// Calls `visit` with the columns of `J_eta,state` (eq. 30 with the shared rows of
+    /// section VI) of `lin`, a linearization of a measurement of feature `id`, by row owner:
+    /// the feature's own rows (when it has any), then each shared block it holds. The
+    /// borrowing form of [`FeatureMap::linearize_at`]'s `columns`, for a filter that fills
+    /// its own buffers.
+    pub fn visit_columns(
+        &self,
+        id: FeatureId,
+        lin: &LinearizedMeasurement,
+        mut visit: impl FnMut(RowOwner, &DMatrix<f64>) -> Result<()>,
+    ) -> Result<()> {
+        if self.get(id)?.mspace_dim() > 0 {
+            visit(RowOwner::Feature(id), &lin.d_eta_d_own)?;
+        }
+        for (block, d) in &lin.d_eta_d_shared {
+            let shared = self.links[id.0]
+                .get(*block)
+                .copied()
+                .flatten()
+                .ok_or_else(|| {
+                    Error::Sharing(format!(
+                        "feature {} says block {block} is shared but the map has no link",
+                        id.0
+                    ))
+                })?;
+            visit(RowOwner::Shared(shared), d)?;
+        }
+        Ok(())
     }
 
     /// Checks that links, sharing flags and shared-block member lists agree.

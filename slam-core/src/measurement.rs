@@ -5,7 +5,9 @@
 use std::fmt::Debug;
 
 use nalgebra::allocator::Allocator;
-use nalgebra::{DMatrix, DVector, DefaultAllocator, Dim, Matrix, OMatrix, RawStorage};
+use nalgebra::{
+    DMatrix, DVector, DefaultAllocator, Dim, Matrix, OMatrix, RawStorage, RawStorageMut,
+};
 
 use crate::coords::Coordinates;
 use crate::error::{Error, Result};
@@ -97,7 +99,7 @@ pub fn all_finite(slices: &[&[f64]]) -> bool {
 ///
 /// Only `eta`, its Jacobians and the feature's `B` depend on the feature type (paper
 /// section V-A); everything else is generic ([`linearize`]). Implement this typed trait; the
-/// estimator stores measurements as `Box<dyn DynMeasurementModel>` through the blanket
+/// estimator stores measurements as `Arc<dyn DynMeasurementModel>` through the blanket
 /// implementation, which checks the feature type. Run
 /// [`crate::testing::assert_measurement_conforms`] on every implementation.
 pub trait MeasurementModel: Clone + Debug + Send + Sync + 'static {
@@ -190,15 +192,19 @@ pub trait MeasurementModel: Clone + Debug + Send + Sync + 'static {
     }
 
     /// [`linearize_at`] written out for this model, for speed (FastSLAM 2.0's proposal and
-    /// the EKF call it for every pairing). `None` (the default) takes the generic chain
-    /// ([`chain_linearize_at`]); an override must return the chain's numbers bit for bit,
-    /// which [`crate::testing::assert_measurement_conforms`] checks.
+    /// the EKF call it for every pairing), into `out`, reusing its matrices' storage where
+    /// their shapes allow ([`reshape_zeroed`], [`chain_product_into`]): a filter that keeps
+    /// one `out` linearizes without allocating. `None` (the default) takes the generic chain
+    /// ([`chain_linearize_at`]); an override must write the chain's numbers bit for bit
+    /// whatever `out` held before, which [`crate::testing::assert_measurement_conforms`]
+    /// checks. On an error `out` holds no meaningful numbers.
     fn linearize_at(
         &self,
         feature: &Self::Feature,
         frame: &SensorFrame,
-    ) -> Option<Result<LinearizedMeasurement>> {
-        let _ = (feature, frame);
+        out: &mut LinearizedMeasurement,
+    ) -> Option<Result<()>> {
+        let _ = (feature, frame, out);
         None
     }
 }
@@ -296,8 +302,9 @@ pub trait DynMeasurementModel: Debug + Send + Sync {
         &self,
         feature: &dyn Feature,
         frame: &SensorFrame,
-    ) -> Option<Result<LinearizedMeasurement>> {
-        let _ = (feature, frame);
+        out: &mut LinearizedMeasurement,
+    ) -> Option<Result<()>> {
+        let _ = (feature, frame, out);
         None
     }
 }
@@ -393,8 +400,9 @@ impl<M: MeasurementModel> DynMeasurementModel for M {
         &self,
         feature: &dyn Feature,
         frame: &SensorFrame,
-    ) -> Option<Result<LinearizedMeasurement>> {
-        MeasurementModel::linearize_at(self, downcast_feature::<M::Feature>(feature)?, frame)
+        out: &mut LinearizedMeasurement,
+    ) -> Option<Result<()>> {
+        MeasurementModel::linearize_at(self, downcast_feature::<M::Feature>(feature)?, frame, out)
     }
 }
 
@@ -406,7 +414,8 @@ fn typed_feature<M: MeasurementModel>(feature: &dyn Feature) -> Result<&M::Featu
 }
 
 /// A measurement linearized around the current estimate: eq. 16 with the chain of eq. 21,
-/// giving every block of `J_eta,state` (eq. 30).
+/// giving every block of `J_eta,state` (eq. 30). The default holds empty matrices (a buffer
+/// for [`linearize_at_into`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct LinearizedMeasurement {
     /// `eta` at the current estimate.
@@ -427,6 +436,20 @@ pub struct LinearizedMeasurement {
     /// `J_eta_f = J_eta_o J_of`: with respect to all feature coordinates (what the measurement
     /// would observe of directions not yet in the M-space).
     pub d_eta_d_xf: DMatrix<f64>,
+}
+
+impl Default for LinearizedMeasurement {
+    fn default() -> Self {
+        LinearizedMeasurement {
+            eta: DVector::zeros(0),
+            cov_eta: DMatrix::zeros(0, 0),
+            d_eta_d_robot: DMatrix::zeros(0, 0),
+            d_eta_d_sensor: DMatrix::zeros(0, 0),
+            d_eta_d_own: DMatrix::zeros(0, 0),
+            d_eta_d_shared: Vec::new(),
+            d_eta_d_xf: DMatrix::zeros(0, 0),
+        }
+    }
 }
 
 /// A sensor's frame at one robot pose: where the sensor is in the world (eq. 17) with `J_sr`
@@ -495,9 +518,39 @@ pub fn linearize_at(
     feature: &dyn Feature,
     frame: &SensorFrame,
 ) -> Result<LinearizedMeasurement> {
-    match measurement.linearize_at_dyn(feature, frame) {
-        Some(lin) => lin,
-        None => chain_linearize_at(measurement, feature, frame),
+    let mut out = LinearizedMeasurement::default();
+    linearize_at_into(measurement, feature, frame, &mut out)?;
+    Ok(out)
+}
+
+/// [`linearize_at`] into `out`, reusing its matrices' storage when the model writes its own
+/// linearization ([`MeasurementModel::linearize_at`]); the generic chain replaces `out`.
+/// The numbers are [`linearize_at`]'s whatever `out` held; on an error `out` holds no
+/// meaningful numbers.
+///
+/// ```
+/// use slam_core::{linearize_at, linearize_at_into, LinearizedMeasurement, Pose2, Pose3, SensorFrame};
+/// # fn demo(measurement: &dyn slam_core::DynMeasurementModel, feature: &dyn slam_core::Feature) -> slam_core::Result<()> {
+/// let frame = SensorFrame::new(&Pose2::new(1.0, 0.0, 0.3), &Pose3::identity())?;
+/// let mut kept = LinearizedMeasurement::default();
+/// for _ in 0..2 {
+///     linearize_at_into(measurement, feature, &frame, &mut kept)?;
+/// }
+/// assert_eq!(kept, linearize_at(measurement, feature, &frame)?);
+/// # Ok(()) }
+/// ```
+pub fn linearize_at_into(
+    measurement: &dyn DynMeasurementModel,
+    feature: &dyn Feature,
+    frame: &SensorFrame,
+    out: &mut LinearizedMeasurement,
+) -> Result<()> {
+    match measurement.linearize_at_dyn(feature, frame, out) {
+        Some(done) => done,
+        None => {
+            *out = chain_linearize_at(measurement, feature, frame)?;
+            Ok(())
+        }
     }
 }
 
@@ -683,6 +736,56 @@ where
 {
     assert_eq!(a.ncols(), b.nrows(), "chain_product: shapes do not chain");
     let mut out = OMatrix::<f64, R, C>::zeros_generic(a.shape_generic().0, b.shape_generic().1);
+    add_chain_product(a, b, &mut out);
+    out
+}
+
+/// [`chain_product`] written into `out` (reshaped, its storage reused when large enough):
+/// the same bits, without an allocation on a filter's hot path.
+///
+/// # Panics
+/// When `a`'s columns are not `b`'s rows, as `a * b` does.
+///
+/// ```
+/// use slam_core::{chain_product, chain_product_into, nalgebra::{DMatrix, Matrix2}};
+/// let a = Matrix2::new(1.0, 2.0, 3.0, 4.0);
+/// let mut out = DMatrix::from_element(5, 1, f64::NAN);
+/// chain_product_into(&a, &Matrix2::identity(), &mut out);
+/// assert_eq!(out, DMatrix::from_column_slice(2, 2, chain_product(&a, &Matrix2::identity()).as_slice()));
+/// ```
+pub fn chain_product_into<R, K1, K2, C, SA, SB>(
+    a: &Matrix<f64, R, K1, SA>,
+    b: &Matrix<f64, K2, C, SB>,
+    out: &mut DMatrix<f64>,
+) where
+    R: Dim,
+    K1: Dim,
+    K2: Dim,
+    C: Dim,
+    SA: RawStorage<f64, R, K1>,
+    SB: RawStorage<f64, K2, C>,
+{
+    assert_eq!(a.ncols(), b.nrows(), "chain_product: shapes do not chain");
+    reshape_zeroed(out, a.nrows(), b.ncols());
+    add_chain_product(a, b, out);
+}
+
+/// `out += a b`, each column summed in order of `k`, zero entries of `b` skipped.
+fn add_chain_product<R, K1, K2, C, R2, C2, SA, SB, SO>(
+    a: &Matrix<f64, R, K1, SA>,
+    b: &Matrix<f64, K2, C, SB>,
+    out: &mut Matrix<f64, R2, C2, SO>,
+) where
+    R: Dim,
+    K1: Dim,
+    K2: Dim,
+    C: Dim,
+    R2: Dim,
+    C2: Dim,
+    SA: RawStorage<f64, R, K1>,
+    SB: RawStorage<f64, K2, C>,
+    SO: RawStorageMut<f64, R2, C2>,
+{
     for j in 0..b.ncols() {
         for k in 0..a.ncols() {
             let weight = b[(k, j)];
@@ -693,7 +796,65 @@ where
             }
         }
     }
-    out
+}
+
+/// Makes `matrix` an `nrows x ncols` matrix of zeros, reusing its storage (no allocation
+/// when it held at least as many entries): what a buffer kept across steps needs.
+///
+/// ```
+/// use slam_core::{reshape_zeroed, nalgebra::DMatrix};
+/// let mut buffer = DMatrix::from_element(3, 4, 1.0);
+/// reshape_zeroed(&mut buffer, 2, 5);
+/// assert_eq!(buffer, DMatrix::zeros(2, 5));
+/// ```
+pub fn reshape_zeroed(matrix: &mut DMatrix<f64>, nrows: usize, ncols: usize) {
+    if matrix.shape() == (nrows, ncols) {
+        matrix.fill(0.0);
+        return;
+    }
+    let mut data: Vec<f64> = std::mem::replace(matrix, DMatrix::zeros(0, 0)).data.into();
+    data.clear();
+    data.resize(nrows * ncols, 0.0);
+    *matrix = DMatrix::from_vec(nrows, ncols, data);
+}
+
+/// Writes `source` into `matrix` (reshaped by [`reshape_zeroed`], its storage reused).
+///
+/// ```
+/// use slam_core::{assign_matrix, nalgebra::{DMatrix, Matrix2x3}};
+/// let mut buffer = DMatrix::zeros(0, 0);
+/// assign_matrix(&mut buffer, &Matrix2x3::new(1.0, 2.0, 3.0, 4.0, 5.0, 6.0));
+/// assert_eq!(buffer[(1, 2)], 6.0);
+/// ```
+pub fn assign_matrix<R: Dim, C: Dim, S: RawStorage<f64, R, C>>(
+    matrix: &mut DMatrix<f64>,
+    source: &Matrix<f64, R, C, S>,
+) {
+    reshape_zeroed(matrix, source.nrows(), source.ncols());
+    for j in 0..source.ncols() {
+        for i in 0..source.nrows() {
+            matrix[(i, j)] = source[(i, j)];
+        }
+    }
+}
+
+/// Writes `values` into `vector`, reusing its storage.
+///
+/// ```
+/// use slam_core::{assign_vector, nalgebra::DVector};
+/// let mut buffer = DVector::zeros(5);
+/// assign_vector(&mut buffer, &[1.0, 2.0]);
+/// assert_eq!(buffer, DVector::from_column_slice(&[1.0, 2.0]));
+/// ```
+pub fn assign_vector(vector: &mut DVector<f64>, values: &[f64]) {
+    if vector.len() == values.len() {
+        vector.as_mut_slice().copy_from_slice(values);
+        return;
+    }
+    let mut data: Vec<f64> = std::mem::replace(vector, DVector::zeros(0)).data.into();
+    data.clear();
+    data.extend_from_slice(values);
+    *vector = DVector::from_vec(data);
 }
 
 /// The innovation alone (no Jacobians through the chain): for gating and checks.

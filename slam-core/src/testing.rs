@@ -22,8 +22,9 @@ use nalgebra::{DMatrix, DVector, Vector3, Vector6};
 use crate::coords::CoordBlock;
 use crate::feature::Feature;
 use crate::measurement::{
-    DynMeasurementModel, MeasurementModel, SensorFrame, chain_linearize_at, chain_linearize_own_at,
-    innovation_at, linearize, linearize_at, linearize_own_at,
+    DynMeasurementModel, LinearizedMeasurement, MeasurementModel, SensorFrame, chain_linearize_at,
+    chain_linearize_own_at, innovation_at, linearize, linearize_at, linearize_at_into,
+    linearize_own_at,
 };
 use crate::pose::{Pose2, Pose3, RobotPose};
 use crate::transform::MapToSensor;
@@ -128,6 +129,21 @@ fn fail<T>(check: &'static str, configuration: &str, detail: impl Into<String>) 
         configuration: configuration.to_string(),
         detail: detail.into(),
     })
+}
+
+/// A linearization buffer as a filter leaves it: other shapes (larger and smaller than any
+/// model's), NaN entries, a shared block.
+fn stale_linearization() -> LinearizedMeasurement {
+    let nan = |r, c| DMatrix::from_element(r, c, f64::NAN);
+    LinearizedMeasurement {
+        eta: DVector::from_element(7, f64::NAN),
+        cov_eta: nan(1, 1),
+        d_eta_d_robot: nan(9, 9),
+        d_eta_d_sensor: nan(1, 2),
+        d_eta_d_own: nan(8, 8),
+        d_eta_d_shared: vec![(0, nan(2, 2))],
+        d_eta_d_xf: nan(0, 3),
+    }
 }
 
 fn describe(feature: &dyn Feature) -> String {
@@ -718,6 +734,19 @@ pub fn check_measurement<M: MeasurementModel>(
             "linearize_at",
             cfg,
             format!("the model's own differs from the generic chain: {lin:?} against {chain:?}"),
+        );
+    }
+    // Written into a buffer that held other shapes and numbers, the same.
+    let mut reused = stale_linearization();
+    linearize_at_into(dyn_model, feature, &frame, &mut reused)
+        .or_else(|e| fail("linearize_at_into", cfg, e.to_string()))?;
+    if reused != chain {
+        return fail(
+            "linearize_at_into",
+            cfg,
+            format!(
+                "into a used buffer it differs from the generic chain: {reused:?} against {chain:?}"
+            ),
         );
     }
     let m = lin.eta.len();

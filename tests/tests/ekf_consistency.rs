@@ -14,6 +14,7 @@ use slam_features::Point;
 use slam_sensors::camera::PinholeCamera;
 use slam_sensors::models::ImagePointObservation;
 use slam_sensors::odometry::{Integration, Unicycle};
+use std::sync::Arc;
 
 /// One run: a robot drives straight under one lamp with a ceiling camera; returns the lamp's
 /// and the final pose's NEES (3 dof each), if the lamp was placed.
@@ -52,7 +53,7 @@ fn lamp_run(seed: u64) -> Option<(f64, f64)> {
             let measurement = ImagePointObservation::new(pixel, sigma_px, camera, 2.3).unwrap();
             ekf.update(&[Observation {
                 robot_from_sensor: mount,
-                measurement: Box::new(measurement),
+                measurement: Arc::new(measurement),
                 landmark_id: None,
             }])
             .unwrap();

@@ -5,6 +5,7 @@
 use slam_core::{Observation, Pose3};
 use slam_sensors::models::RangeBearing;
 use slam_sensors::odometry::{Integration, Unicycle};
+use std::sync::Arc;
 
 /// Observations per timed update.
 pub const PER_UPDATE: usize = 16;
@@ -50,7 +51,7 @@ pub fn observation(
     .expect("a valid range-bearing measurement");
     Observation {
         robot_from_sensor: Pose3::identity(),
-        measurement: Box::new(measurement),
+        measurement: Arc::new(measurement),
         landmark_id,
     }
 }

@@ -5,7 +5,7 @@
 use slam_core::{FeatureId, Observation, Result, RobotPose};
 
 use super::jacobians::stack;
-use super::{Decision, Ekf, Pairing, quadratic_form};
+use super::{Decision, Ekf, Pairing};
 use crate::association::{
     Candidate, Choice, associate, candidate_features, crowded, sort_by_distance,
 };
@@ -26,18 +26,19 @@ impl<P: RobotPose> Ekf<P> {
             &mut skips,
         );
         let mut out = Vec::new();
+        let mut lin = std::mem::take(&mut self.linearization);
         for (id, _, _) in nearby {
-            let Ok(mut pairing) = self.linearize(observation, id) else {
+            let spare = self.spare_pairings.pop().unwrap_or_else(Pairing::empty);
+            let Ok(mut pairing) = self.linearize_into(observation, id, &mut lin, spare) else {
                 skips.count("association: linearization failed");
                 continue;
             };
             let tentative = !self.is_confirmed(id);
-            let s = self.innovation_covariance(&pairing, tentative);
-            let Some(s_inv) = s.try_inverse() else {
+            let Some(distance) = self.mahalanobis(&pairing, tentative) else {
                 skips.count("association: singular innovation covariance");
+                self.spare_pairings.push(pairing);
                 continue;
             };
-            let distance = quadratic_form(&s_inv, &pairing.eta);
             if !tentative {
                 pairing.nis = Some(distance);
             }
@@ -51,8 +52,10 @@ impl<P: RobotPose> Ekf<P> {
                 });
             } else {
                 skips.count("association: non-finite Mahalanobis distance");
+                self.spare_pairings.push(pairing);
             }
         }
+        self.linearization = lin;
         self.skips = skips;
         sort_by_distance(&mut out);
         out
@@ -90,11 +93,20 @@ impl<P: RobotPose> Ekf<P> {
             self.joint_distance(&pairings)
         })?;
         for ((index, list), choice) in open.into_iter().zip(lists).zip(choices) {
+            let chosen = match choice {
+                Choice::Pair(k) => Some(k),
+                _ => None,
+            };
+            let mut paired = None;
+            for (k, candidate) in list.into_iter().enumerate() {
+                if Some(k) == chosen {
+                    paired = Some(candidate.data);
+                } else {
+                    self.recycle(candidate.data);
+                }
+            }
             decisions[index] = Some(match choice {
-                Choice::Pair(k) => list
-                    .into_iter()
-                    .nth(k)
-                    .map_or(Decision::Reject, |c| Decision::Pair(c.data)),
+                Choice::Pair(_) => paired.map_or(Decision::Reject, Decision::Pair),
                 Choice::New if self.crowded(&observations[index]) => {
                     self.skips
                         .count("association: a new feature would double an existing one");
@@ -119,10 +131,7 @@ impl<P: RobotPose> Ekf<P> {
         }
         let gate = self.gates.gate(probability, pairing.eta.len())?;
         let tentative = !self.is_confirmed(feature);
-        let s = self.innovation_covariance(&pairing, tentative);
-        let distance = s
-            .try_inverse()
-            .map(|s_inv| quadratic_form(&s_inv, &pairing.eta));
+        let distance = self.mahalanobis(&pairing, tentative);
         if !tentative {
             pairing.nis = distance;
         }
@@ -131,6 +140,7 @@ impl<P: RobotPose> Ekf<P> {
         } else {
             self.skips
                 .count("association: a known landmark outside its validation gate");
+            self.recycle(pairing);
             Ok(Decision::Reject)
         }
     }

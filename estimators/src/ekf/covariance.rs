@@ -157,6 +157,15 @@ impl StateCovariance {
         self.generators.select_rows(indices)
     }
 
+    /// [`StateCovariance::generators`] written into `out`, column-major (`indices.len() x
+    /// 3`), its storage reused.
+    pub(crate) fn generators_into(&self, indices: &[usize], out: &mut Vec<f64>) {
+        out.clear();
+        for column in 0..3 {
+            out.extend(indices.iter().map(|&row| self.generators[(row, column)]));
+        }
+    }
+
     /// Appends `block.nrows()` rows with covariance `block`, cross-covariance `cross`
     /// (`block.nrows() x dim`, or zero when `None`) with the existing rows, and unobservable
     /// directions `generators` (`block.nrows() x 3`); returns their indices. Capacity grows

@@ -97,6 +97,7 @@ mod tests {
     use slam_core::Pose2;
     use slam_core::nalgebra::Vector3;
     use slam_sensors::models::RangeBearing;
+    use std::sync::Arc;
 
     /// A frame kept for the step is the one a fresh computation gives; another pose or
     /// mount is computed afresh.
@@ -110,7 +111,7 @@ mod tests {
         let observations: Vec<Observation> = [level, tilted, level, locked]
             .into_iter()
             .map(|mount| Observation {
-                measurement: Box::new(RangeBearing::new(2.0, 0.1, 0.1, 0.01).unwrap()),
+                measurement: Arc::new(RangeBearing::new(2.0, 0.1, 0.1, 0.01).unwrap()),
                 robot_from_sensor: mount,
                 landmark_id: None,
             })

@@ -2,7 +2,7 @@
 //! coordinates (for the observability constraint), the projection that removes them, and the
 //! stacking of pairings into one batch measurement.
 
-use slam_core::nalgebra::{DMatrix, DVector, Matrix3};
+use slam_core::nalgebra::{DMatrix, DMatrixView, DVector, Matrix3};
 use slam_core::{CoordBlock, Coordinates, RobotPose};
 
 use super::Pairing;
@@ -37,8 +37,17 @@ pub(super) fn coordinate_generators(coordinates: &Coordinates) -> DMatrix<f64> {
 /// (left as it is when `N^T N` is singular). `n` has 3 columns (the planar generators); the
 /// 3 x 3 Gram matrix is inverted in closed form.
 pub(super) fn project_out(h: &DMatrix<f64>, n: &DMatrix<f64>) -> DMatrix<f64> {
+    let mut out = h.clone();
+    project_out_in_place(&mut out, n.as_view());
+    out
+}
+
+/// [`project_out`] written over `h` (no allocation for 3 directions): each row's `H N (N^T
+/// N)^-1` depends on that row alone, so the rows are projected one after the other.
+pub(super) fn project_out_in_place(h: &mut DMatrix<f64>, n: DMatrixView<'_, f64>) {
     if n.ncols() != 3 || n.nrows() != h.ncols() {
-        return project_out_dense(h, n);
+        *h = project_out_dense(h, &n.clone_owned());
+        return;
     }
     let mut gram = Matrix3::zeros();
     for a in 0..3 {
@@ -47,26 +56,22 @@ pub(super) fn project_out(h: &DMatrix<f64>, n: &DMatrix<f64>) -> DMatrix<f64> {
         }
     }
     let Some(inverse) = gram.try_inverse() else {
-        return h.clone();
+        return;
     };
-    // H N (N^T N)^-1, m x 3.
-    let mut hn = DMatrix::<f64>::zeros(h.nrows(), 3);
     for i in 0..h.nrows() {
+        // Row i of H N (N^T N)^-1.
         let mut row = [0.0; 3];
         for (a, value) in row.iter_mut().enumerate() {
             *value = (0..h.ncols()).map(|k| h[(i, k)] * n[(k, a)]).sum();
         }
-        for b in 0..3 {
-            hn[(i, b)] = (0..3).map(|a| row[a] * inverse[(a, b)]).sum();
+        let mut hn = [0.0; 3];
+        for (b, value) in hn.iter_mut().enumerate() {
+            *value = (0..3).map(|a| row[a] * inverse[(a, b)]).sum();
+        }
+        for j in 0..h.ncols() {
+            h[(i, j)] -= (0..3).map(|b| hn[b] * n[(j, b)]).sum::<f64>();
         }
     }
-    let mut out = h.clone();
-    for j in 0..h.ncols() {
-        for i in 0..h.nrows() {
-            out[(i, j)] -= (0..3).map(|b| hn[(i, b)] * n[(j, b)]).sum::<f64>();
-        }
-    }
-    out
 }
 
 /// [`project_out`] for any number of directions, by nalgebra products.

@@ -362,6 +362,7 @@ mod tests {
     use slam_core::nalgebra::{DMatrix, Matrix2};
     use slam_core::{Estimator, Observation, Pose2, Pose3};
     use slam_sensors::models::PoleObservation;
+    use std::sync::Arc;
 
     use super::super::{Decision, Ekf, EkfParams};
     use crate::test_support::{
@@ -420,7 +421,7 @@ mod tests {
             PoleObservation::new(10.0, bearing, 0.2, [sigmas[0], sigmas[1], 0.05]).unwrap();
         Observation {
             robot_from_sensor: Pose3::identity(),
-            measurement: Box::new(measurement),
+            measurement: Arc::new(measurement),
             landmark_id: None,
         }
     }

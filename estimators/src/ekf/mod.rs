@@ -38,10 +38,10 @@ mod views;
 use std::collections::{BTreeMap, HashMap};
 
 use serde::{Deserialize, Serialize};
-use slam_core::nalgebra::{DMatrix, DVector};
+use slam_core::nalgebra::{DMatrix, DVector, SMatrix};
 use slam_core::{
-    Error, Estimator, FeatureId, FeatureMap, MotionModel, Observation, Result, RobotPose, RowOwner,
-    Skips, UpdateReport,
+    Error, Estimator, FeatureId, FeatureMap, LinearizedMeasurement, MotionModel, Observation,
+    Result, RobotPose, RowOwner, Skips, UpdateReport, assign_matrix, assign_vector, reshape_zeroed,
 };
 
 use crate::association::{Association, AssociationSettings, Gates};
@@ -269,6 +269,12 @@ pub struct Ekf<P: RobotPose> {
     skips: Skips,
     /// The sensor frames of the current step's mounts at the current pose.
     frames: StepFrames<P>,
+    /// The linearization buffer every pairing is written through (its storage kept).
+    linearization: LinearizedMeasurement,
+    /// Pairings of past steps, their storage reused by the next linearizations.
+    spare_pairings: Vec<Pairing>,
+    /// Scratch space for the unobservable directions of a pairing's rows.
+    scratch: Vec<f64>,
 }
 
 /// What the filter decided for one observation.
@@ -280,6 +286,20 @@ enum Decision {
     New,
     /// Dropped (ambiguous, or it could not be linearized or placed).
     Reject,
+}
+
+impl Pairing {
+    /// A pairing with no storage yet (the buffers [`Ekf::linearize`] fills).
+    fn empty() -> Self {
+        Pairing {
+            feature: FeatureId(0),
+            indices: Vec::new(),
+            h: DMatrix::zeros(0, 0),
+            eta: DVector::zeros(0),
+            cov_eta: DMatrix::zeros(0, 0),
+            nis: None,
+        }
+    }
 }
 
 impl<P: RobotPose> Ekf<P> {
@@ -320,6 +340,9 @@ impl<P: RobotPose> Ekf<P> {
             view_batch: Vec::new(),
             skips: Skips::default(),
             frames: StepFrames::default(),
+            linearization: LinearizedMeasurement::default(),
+            spare_pairings: Vec::new(),
+            scratch: Vec::new(),
         })
     }
 
@@ -385,23 +408,44 @@ impl<P: RobotPose> Ekf<P> {
         (0..P::DIM).collect()
     }
 
-    /// Linearizes `observation` against feature `id` at the current state (eq. 30).
-    fn linearize(&self, observation: &Observation, id: FeatureId) -> Result<Pairing> {
+    /// Linearizes `observation` against feature `id` at the current state (eq. 30), through
+    /// the kept linearization buffer into a spare pairing (no allocation once the buffers
+    /// have their shapes).
+    fn linearize(&mut self, observation: &Observation, id: FeatureId) -> Result<Pairing> {
+        let mut lin = std::mem::take(&mut self.linearization);
+        let spare = self.spare_pairings.pop().unwrap_or_else(Pairing::empty);
+        let pairing = self.linearize_into(observation, id, &mut lin, spare);
+        self.linearization = lin;
+        pairing
+    }
+
+    /// [`Ekf::linearize`] through `lin` into `pairing`'s storage.
+    fn linearize_into(
+        &self,
+        observation: &Observation,
+        id: FeatureId,
+        lin: &mut LinearizedMeasurement,
+        mut pairing: Pairing,
+    ) -> Result<Pairing> {
         let frame = self
             .frames
             .frame(&self.pose, &observation.robot_from_sensor)?;
-        let lin = self
-            .map
-            .linearize_at(id, observation.measurement.as_ref(), &frame)?;
-        let width = P::DIM + lin.columns.iter().map(|(_, d)| d.ncols()).sum::<usize>();
-        let mut indices = Vec::with_capacity(width);
-        indices.extend(0..P::DIM);
-        let m = lin.measurement.eta.len();
-        let mut h = DMatrix::zeros(m, width);
-        h.columns_mut(0, P::DIM)
-            .copy_from(&lin.measurement.d_eta_d_robot);
-        for (owner, d) in &lin.columns {
-            let rows = self.rows.get(owner).ok_or_else(|| {
+        let measurement = observation.measurement.as_ref();
+        slam_core::linearize_at_into(measurement, self.map.get(id)?, &frame, lin)?;
+        let shared_width: usize = lin.d_eta_d_shared.iter().map(|(_, d)| d.ncols()).sum();
+        let width = P::DIM + lin.d_eta_d_own.ncols() + shared_width;
+        let m = lin.eta.len();
+        pairing.feature = id;
+        pairing.nis = None;
+        pairing.indices.clear();
+        pairing.indices.extend(0..P::DIM);
+        reshape_zeroed(&mut pairing.h, m, width);
+        pairing
+            .h
+            .columns_mut(0, P::DIM)
+            .copy_from(&lin.d_eta_d_robot);
+        self.map.visit_columns(id, lin, |owner, d| {
+            let rows = self.rows.get(&owner).ok_or_else(|| {
                 Error::Invariant(format!("row owner {owner:?} has no state rows"))
             })?;
             if rows.len() != d.ncols() {
@@ -411,17 +455,80 @@ impl<P: RobotPose> Ekf<P> {
                     got: d.ncols(),
                 });
             }
-            h.columns_mut(indices.len(), d.ncols()).copy_from(d);
-            indices.extend_from_slice(rows);
+            pairing
+                .h
+                .columns_mut(pairing.indices.len(), d.ncols())
+                .copy_from(d);
+            pairing.indices.extend_from_slice(rows);
+            Ok(())
+        })?;
+        assign_vector(&mut pairing.eta, lin.eta.as_slice());
+        assign_matrix(&mut pairing.cov_eta, &lin.cov_eta);
+        Ok(pairing)
+    }
+
+    /// Keeps a pairing no longer needed, for its storage.
+    fn recycle(&mut self, pairing: Pairing) {
+        self.spare_pairings.push(pairing);
+    }
+
+    /// `eta^T S^-1 eta` with `S` of [`Ekf::innovation_covariance`]; `None` when `S` is
+    /// singular. On the stack for up to 4 measurement rows and 16 state rows, with the
+    /// dynamic path's bits (nalgebra inverts up to 4 x 4 in closed form for any storage).
+    fn mahalanobis(&self, pairing: &Pairing, tentative: bool) -> Option<f64> {
+        match pairing.eta.len() {
+            1 => self.mahalanobis_fixed::<1>(pairing, tentative),
+            2 => self.mahalanobis_fixed::<2>(pairing, tentative),
+            3 => self.mahalanobis_fixed::<3>(pairing, tentative),
+            4 => self.mahalanobis_fixed::<4>(pairing, tentative),
+            _ => self.mahalanobis_dynamic(pairing, tentative),
         }
-        Ok(Pairing {
-            feature: id,
-            indices,
-            h,
-            eta: lin.measurement.eta,
-            cov_eta: lin.measurement.cov_eta,
-            nis: None,
-        })
+    }
+
+    /// [`Ekf::mahalanobis`] through dynamic matrices.
+    fn mahalanobis_dynamic(&self, pairing: &Pairing, tentative: bool) -> Option<f64> {
+        self.innovation_covariance(pairing, tentative)
+            .try_inverse()
+            .map(|s_inv| quadratic_form(&s_inv, &pairing.eta))
+    }
+
+    /// [`Ekf::mahalanobis`] for `M` measurement rows, the arithmetic of
+    /// [`Ekf::innovation_covariance`] and [`quadratic_form`] in the same order.
+    fn mahalanobis_fixed<const M: usize>(&self, pairing: &Pairing, tentative: bool) -> Option<f64> {
+        const CAPACITY: usize = 64;
+        let k = pairing.h.ncols();
+        if pairing.h.nrows() != M || M * k > CAPACITY {
+            return self.mahalanobis_dynamic(pairing, tentative);
+        }
+        let indices = &pairing.indices;
+        // H C on the pairing's rows, C read in place; column-major as a DMatrix.
+        let mut hc = [0.0; CAPACITY];
+        for b in 0..k {
+            for a in 0..k {
+                let c = self.cov.get(indices[a], indices[b]);
+                for i in 0..M {
+                    hc[i + M * b] += pairing.h[(i, a)] * c;
+                }
+            }
+        }
+        let s = SMatrix::<f64, M, M>::from_fn(|i, j| {
+            let s = (0..k)
+                .map(|b| hc[i + M * b] * pairing.h[(j, b)])
+                .sum::<f64>()
+                + pairing.cov_eta[(i, j)];
+            if tentative {
+                s + pairing.cov_eta[(i, j)]
+            } else {
+                s
+            }
+        });
+        let s_inv = s.try_inverse()?;
+        let eta = &pairing.eta;
+        Some(
+            (0..M)
+                .map(|i| eta[i] * (0..M).map(|j| s_inv[(i, j)] * eta[j]).sum::<f64>())
+                .sum(),
+        )
     }
 
     /// `S = H C H^T + C_eta` of a pairing; for a tentative feature (no rows) the feature's own

@@ -5,13 +5,13 @@
 use std::collections::BTreeSet;
 use std::sync::Arc;
 
-use slam_core::nalgebra::DVector;
+use slam_core::nalgebra::{DMatrixView, DVector};
 use slam_core::{
     Error, Extension, FeatureId, Observation, Result, RobotPose, RowOwner, UpdateReport,
 };
 
-use super::jacobians::{coordinate_generators, project_out, stack};
-use super::{Decision, Ekf, Pairing, quadratic_form};
+use super::jacobians::{coordinate_generators, project_out_in_place, stack};
+use super::{Decision, Ekf, Pairing};
 use crate::lifecycle::{
     MapEntry, OUTSIDE_MSPACE_TOLERANCE, Sighting, Track, drop_views_when_grown, extension_of, grow,
 };
@@ -50,7 +50,10 @@ impl<P: RobotPose> Ekf<P> {
         batch.append(&mut self.view_batch);
         if self.params.observability_constraint {
             for pairing in &mut batch {
-                pairing.h = project_out(&pairing.h, &self.cov.generators(&pairing.indices));
+                self.cov
+                    .generators_into(&pairing.indices, &mut self.scratch);
+                let n = DMatrixView::from_slice(&self.scratch, pairing.indices.len(), 3);
+                project_out_in_place(&mut pairing.h, n);
             }
         }
         report.rejected += self.update_batch(batch)?;
@@ -94,11 +97,7 @@ impl<P: RobotPose> Ekf<P> {
                     if self.is_confirmed(id) {
                         // Association's figure when it had one: the covariance has not
                         // changed since.
-                        let nis = pairing.nis.or_else(|| {
-                            self.innovation_covariance(&pairing, false)
-                                .try_inverse()
-                                .map(|s_inv| quadratic_form(&s_inv, &pairing.eta))
-                        });
+                        let nis = pairing.nis.or_else(|| self.mahalanobis(&pairing, false));
                         match nis {
                             Some(nis) => report.nis.push((nis, pairing.eta.len())),
                             None => self.skips.count("NIS: singular innovation covariance"),
@@ -106,9 +105,12 @@ impl<P: RobotPose> Ekf<P> {
                         if self.seen_from_the_last_update_viewpoint(id) {
                             self.skips
                                 .count("update: seen again from nearly the same viewpoint");
+                            self.recycle(pairing);
                         } else {
                             batch.push(pairing);
                         }
+                    } else {
+                        self.recycle(pairing);
                     }
                     self.note_sighting(id, observation)?;
                     if self.grow(id, observation)? {
@@ -186,6 +188,7 @@ impl<P: RobotPose> Ekf<P> {
             }
             dropped += before - batch.len();
         }
+        self.spare_pairings.append(&mut batch);
         Ok(dropped)
     }
 
@@ -304,7 +307,7 @@ impl<P: RobotPose> Ekf<P> {
             observation,
             world_from_robot: &self.pose,
             step: self.step,
-            view_measurement: triangulates.then(|| Arc::from(observation.measurement.clone_box())),
+            view_measurement: triangulates.then(|| Arc::clone(&observation.measurement)),
             pose_covariance: triangulates.then(|| slam_core::Estimator::pose_covariance(self)),
             to_sensor: frame.as_ref().map(|f| &f.to_sensor),
         };
@@ -421,6 +424,7 @@ mod tests {
     use slam_core::nalgebra::{DMatrix, Matrix2, Vector2};
     use slam_core::{Estimator, Observation, Pose2, Pose3, RowOwner, Shape};
     use slam_sensors::models::WallObservation;
+    use std::sync::Arc;
 
     use super::super::{Ekf, EkfParams};
 
@@ -436,7 +440,7 @@ mod tests {
         .unwrap();
         vec![Observation {
             robot_from_sensor: Pose3::identity(),
-            measurement: Box::new(measurement),
+            measurement: Arc::new(measurement),
             landmark_id: None,
         }]
     }
@@ -489,7 +493,7 @@ mod tests {
             slam_sensors::models::RangeBearing::new(5.0, bearing, 0.05, 0.01).unwrap();
         vec![Observation {
             robot_from_sensor: Pose3::identity(),
-            measurement: Box::new(measurement),
+            measurement: Arc::new(measurement),
             landmark_id: Some(7),
         }]
     }
@@ -544,7 +548,7 @@ mod tests {
         let measurement = WallObservation::from_segment(a, b, line_cov, real, [0.05, 0.05]);
         Observation {
             robot_from_sensor: Pose3::identity(),
-            measurement: Box::new(measurement.unwrap()),
+            measurement: Arc::new(measurement.unwrap()),
             landmark_id: None,
         }
     }

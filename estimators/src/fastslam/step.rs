@@ -89,7 +89,7 @@ fn shared_views(
         .map(|o| {
             o.measurement
                 .triangulates_dyn()
-                .then(|| Arc::from(o.measurement.clone_box()))
+                .then(|| Arc::clone(&o.measurement))
         })
         .collect()
 }

@@ -9,6 +9,7 @@ use slam_core::{Estimator, MotionModel, Observation, Pose2, Pose3, downcast_feat
 use slam_features::Point;
 use slam_sensors::models::RangeBearing;
 use slam_sensors::odometry::{Integration, Unicycle};
+use std::sync::Arc;
 
 use super::*;
 use crate::particles::{normalized, systematic_resample};
@@ -70,7 +71,7 @@ fn world(steps: usize, with_ids: bool, seed: u64) -> World {
             .unwrap();
             observations.push(Observation {
                 robot_from_sensor: Pose3::identity(),
-                measurement: Box::new(measurement),
+                measurement: Arc::new(measurement),
                 landmark_id: with_ids.then_some(id as u64),
             });
         }

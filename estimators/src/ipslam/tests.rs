@@ -47,7 +47,7 @@ pub(crate) fn point_observations(points: &[Vector2<f64>], mount: &Pose3) -> Vec<
         .iter()
         .map(|p| Observation {
             robot_from_sensor: *mount,
-            measurement: Box::new(LinePoint::new(*p, 0.01).unwrap()),
+            measurement: Arc::new(LinePoint::new(*p, 0.01).unwrap()),
             landmark_id: None,
         })
         .collect()
@@ -184,7 +184,7 @@ fn observations_are_not_used_and_bad_parameters_are_errors() {
     .unwrap();
     let other = Observation {
         robot_from_sensor: Pose3::identity(),
-        measurement: Box::new(
+        measurement: Arc::new(
             slam_sensors::models::RangeBearing::new(2.0, 0.1, 0.1, 0.01).unwrap(),
         ),
         landmark_id: None,

@@ -305,18 +305,22 @@ pub(crate) fn grow<P: RobotPose>(
     let threshold = track.growth_threshold(settings.confirm_after);
     let old_dim = target.feature()?.mspace_dim();
     let mut priors = Vec::new();
-    loop {
-        let options = target.feature()?.growth_options();
-        let Some(subspace) = ready_subspace(&options, &track.revealed, threshold) else {
-            break;
-        };
-        track.revealed.remove(subspace.name);
-        let growth = target.activate(subspace.name)?;
-        priors.push(growth_prior(
-            target.feature()?,
-            &growth,
-            settings.new_row_variance,
-        ));
+    // No subspace is ready unless one was revealed often enough (or no sighting is needed):
+    // the usual case, decided without listing the feature's options.
+    if threshold == 0 || track.revealed.values().any(|&count| count >= threshold) {
+        loop {
+            let options = target.feature()?.growth_options();
+            let Some(subspace) = ready_subspace(&options, &track.revealed, threshold) else {
+                break;
+            };
+            track.revealed.remove(subspace.name);
+            let growth = target.activate(subspace.name)?;
+            priors.push(growth_prior(
+                target.feature()?,
+                &growth,
+                settings.new_row_variance,
+            ));
+        }
     }
     let mut triangulated = false;
     if target.feature()?.mspace_dim() == old_dim

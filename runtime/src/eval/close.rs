@@ -122,6 +122,7 @@ mod tests {
     use slam_core::{Observation, Pose3};
     use slam_estimators::{Ekf, EkfParams};
     use slam_sensors::models::PoleObservation;
+    use std::sync::Arc;
 
     /// Trees at 10 m and the given bearings, seen in one step from a robot whose pose has
     /// variance `pose_variance`; both confirmed at once, no merging.
@@ -137,7 +138,7 @@ mod tests {
             .iter()
             .map(|&b| Observation {
                 robot_from_sensor: Pose3::identity(),
-                measurement: Box::new(
+                measurement: Arc::new(
                     PoleObservation::new(10.0, b, 0.2, [0.05, 0.005, 0.05]).unwrap(),
                 ),
                 landmark_id: None,

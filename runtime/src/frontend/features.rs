@@ -2,6 +2,7 @@
 //! lamps, and the observations the data give.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 use slam_core::{Observation, Pose3};
@@ -344,7 +345,7 @@ impl FeaturesFrontend {
                 {
                     Ok(m) => {
                         self.counts.walls += 1;
-                        out.push(observation(m));
+                        out.push(observation(Arc::from(m)));
                     }
                     Err(_) => self.counts.dropped += 1,
                 }
@@ -356,7 +357,7 @@ impl FeaturesFrontend {
                 match pole.to_observation(self.config.pole_sigma_floor * self.noise_factor) {
                     Ok(o) => {
                         self.counts.poles += 1;
-                        out.push(observation(Box::new(o)));
+                        out.push(observation(Arc::new(o)));
                     }
                     Err(_) => self.counts.dropped += 1,
                 }
@@ -390,9 +391,9 @@ impl FeaturesFrontend {
         };
         let mut out: Vec<Observation> = lines
             .into_iter()
-            .map(|l| observation(Box::new(l) as Box<dyn slam_core::DynMeasurementModel>))
+            .map(|l| observation(Arc::new(l) as Arc<dyn slam_core::DynMeasurementModel>))
             .collect();
-        out.extend(lamps.into_iter().map(|l| observation(Box::new(l))));
+        out.extend(lamps.into_iter().map(|l| observation(Arc::new(l))));
         Ok(out)
     }
 }

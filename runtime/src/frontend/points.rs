@@ -7,6 +7,7 @@ use slam_core::Observation;
 use slam_core::nalgebra::Vector2;
 use slam_sensors::Event;
 use slam_sensors::models::LinePoint;
+use std::sync::Arc;
 
 use super::{Frontend, FrontendConfig, FrontendCounts, SensorInfo};
 use crate::error::{Result, RuntimeError};
@@ -63,7 +64,7 @@ impl Frontend for ScanPoints {
             let point = Vector2::new(p.range * p.bearing.cos(), p.range * p.bearing.sin());
             out.push(Observation {
                 robot_from_sensor: *robot_from_sensor,
-                measurement: Box::new(LinePoint::new(point, self.sigma)?),
+                measurement: Arc::new(LinePoint::new(point, self.sigma)?),
                 landmark_id: None,
             });
         }

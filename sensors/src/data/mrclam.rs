@@ -23,6 +23,7 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use slam_core::nalgebra::Vector2;
 use slam_core::{Observation, Pose3};
@@ -373,7 +374,7 @@ fn observation(
     .map_err(|e| at(file, m.line, e.into()))?;
     Ok(Observation {
         robot_from_sensor: options.robot_from_sensor,
-        measurement: Box::new(model),
+        measurement: Arc::new(model),
         landmark_id: Some(subject),
     })
 }

@@ -32,6 +32,7 @@
 use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use slam_core::nalgebra::{Matrix3, Vector2, Vector3};
 use slam_core::{Observation, Pose2, Pose3};
@@ -355,7 +356,7 @@ fn read_observation(
         RangeBearing::new(range, bearing, sigma_r, sigma_b).map_err(|e| fields.wrap(e.into()))?;
     let observation = Observation {
         robot_from_sensor: Pose3::identity(),
-        measurement: Box::new(model),
+        measurement: Arc::new(model),
         landmark_id,
     };
     state
@@ -637,7 +638,7 @@ mod tests {
     fn observation(sigma_r: f64, mount: Pose3) -> Event {
         Event::Observations(vec![Observation {
             robot_from_sensor: mount,
-            measurement: Box::new(RangeBearing::new(3.0, 0.5, sigma_r, 0.01).unwrap()),
+            measurement: Arc::new(RangeBearing::new(3.0, 0.5, sigma_r, 0.01).unwrap()),
             landmark_id: Some(4),
         }])
     }

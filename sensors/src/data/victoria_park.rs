@@ -23,6 +23,7 @@
 //! truth; the GPS is intermittent and jumps.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use slam_core::Observation;
 use slam_core::nalgebra::Vector2;
@@ -361,7 +362,7 @@ impl FrameObservations {
                 .map_err(|e| at(file, d.line, e.into()))?;
             observations.push(Observation {
                 robot_from_sensor: self.options.vehicle.robot_from_laser(),
-                measurement: Box::new(pole),
+                measurement: Arc::new(pole),
                 landmark_id: None,
             });
         }

@@ -44,11 +44,12 @@ impl LinePoint {
     /// IPSLAM's `LineMapTypes::scan_point` asks of a scan-point front-end).
     ///
     /// ```
+    /// use std::sync::Arc;
     /// use slam_core::{Observation, Pose3, nalgebra::Vector2};
     /// use slam_sensors::models::LinePoint;
     /// let observation = Observation {
     ///     robot_from_sensor: Pose3::identity(),
-    ///     measurement: Box::new(LinePoint::new(Vector2::new(2.0, 0.5), 0.02).unwrap()),
+    ///     measurement: Arc::new(LinePoint::new(Vector2::new(2.0, 0.5), 0.02).unwrap()),
     ///     landmark_id: None,
     /// };
     /// assert_eq!(LinePoint::point_of(&observation), Some(Vector2::new(2.0, 0.5)));

@@ -3,8 +3,9 @@
 use slam_core::nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Matrix3x6, Vector2, Vector3};
 use slam_core::{
     CoordBlock, Coordinates, Error, Feature, Innovation, LinearizedMeasurement, MapToSensor,
-    MeasurementModel, OwnLinearization, Pose3, Result, SensorFrame, all_finite, chain_covariance,
-    chain_product, ensure_finite, wrap_angle,
+    MeasurementModel, OwnLinearization, Pose3, Result, SensorFrame, all_finite, assign_matrix,
+    assign_vector, chain_covariance, chain_product, chain_product_into, ensure_finite,
+    reshape_zeroed, wrap_angle,
 };
 use slam_features::Pole;
 
@@ -90,10 +91,17 @@ fn scalar_and_point2(d_centre: &Matrix2<f64>) -> Matrix3<f64> {
 /// `J_eta_f B~`: a full pole's `B~` is the identity, a tentative pole's has no columns
 /// (Table II); the product as the chain takes it.
 fn own_columns(pole: &Pole, d_eta_d_xf: &Matrix3<f64>) -> DMatrix<f64> {
+    let mut own = DMatrix::zeros(0, 0);
+    own_columns_into(pole, d_eta_d_xf, &mut own);
+    own
+}
+
+/// [`own_columns`] into `out`, its storage reused.
+fn own_columns_into(pole: &Pole, d_eta_d_xf: &Matrix3<f64>, out: &mut DMatrix<f64>) {
     if pole.mspace_dim() == 3 {
-        dynamic(&chain_product(d_eta_d_xf, &Matrix3::identity()))
+        chain_product_into(d_eta_d_xf, &Matrix3::identity(), out);
     } else {
-        DMatrix::zeros(3, 0)
+        reshape_zeroed(out, 3, 0);
     }
 }
 
@@ -152,8 +160,9 @@ impl MeasurementModel for PoleObservation {
         &self,
         pole: &Pole,
         frame: &SensorFrame,
-    ) -> Option<Result<LinearizedMeasurement>> {
-        let lin = || {
+        out: &mut LinearizedMeasurement,
+    ) -> Option<Result<()>> {
+        let mut lin = || {
             let to_sensor = &frame.to_sensor;
             let (d_centre_d_sensor, d_centre_d_centre) =
                 to_sensor.point2_jacobians(&pole.centre())?;
@@ -166,21 +175,21 @@ impl MeasurementModel for PoleObservation {
             let d_xo_d_xm = scalar_and_point2(&d_centre_d_centre);
             let d_eta_d_sensor = chain_product(&parts.d_eta_d_xo, &d_xo_d_sensor);
             let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, &d_xo_d_xm);
-            let d_eta_d_own = own_columns(pole, &d_eta_d_xf);
-            let d_eta_d_robot = chain_product(&d_eta_d_sensor, &frame.pose.d_sensor_d_robot);
-            Ok(LinearizedMeasurement {
-                eta: DVector::from_column_slice(parts.eta.as_slice()),
-                cov_eta: dynamic(&chain_covariance(&parts.d_eta_d_v, &parts.cov_v)),
-                d_eta_d_robot: DMatrix::from_column_slice(
-                    3,
-                    d_eta_d_robot.ncols(),
-                    d_eta_d_robot.as_slice(),
-                ),
-                d_eta_d_sensor: DMatrix::from_column_slice(3, 6, d_eta_d_sensor.as_slice()),
-                d_eta_d_own,
-                d_eta_d_shared: Vec::new(),
-                d_eta_d_xf: dynamic(&d_eta_d_xf),
-            })
+            assign_vector(&mut out.eta, parts.eta.as_slice());
+            assign_matrix(
+                &mut out.cov_eta,
+                &chain_covariance(&parts.d_eta_d_v, &parts.cov_v),
+            );
+            chain_product_into(
+                &d_eta_d_sensor,
+                &frame.pose.d_sensor_d_robot,
+                &mut out.d_eta_d_robot,
+            );
+            assign_matrix(&mut out.d_eta_d_sensor, &d_eta_d_sensor);
+            own_columns_into(pole, &d_eta_d_xf, &mut out.d_eta_d_own);
+            out.d_eta_d_shared.clear();
+            assign_matrix(&mut out.d_eta_d_xf, &d_eta_d_xf);
+            Ok(())
         };
         Some(lin())
     }

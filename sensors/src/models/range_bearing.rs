@@ -1,10 +1,10 @@
 //! Range and bearing from a planar sensor to a point landmark (the classic EKF-SLAM case).
 
-use slam_core::nalgebra::{DVector, Matrix2, Matrix2x3, Vector2, Vector3};
+use slam_core::nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Vector2, Vector3};
 use slam_core::{
-    CoordBlock, Coordinates, Error, Feature, Innovation, LinearizedMeasurement, MapToSensor,
-    MeasurementModel, OwnLinearization, Pose3, Result, SensorFrame, chain_covariance,
-    chain_product, ensure_finite, wrap_angle,
+    CoordBlock, Coordinates, Error, Innovation, LinearizedMeasurement, MapToSensor,
+    MeasurementModel, OwnLinearization, Pose3, Result, SensorFrame, assign_matrix, assign_vector,
+    chain_covariance, chain_product, chain_product_into, ensure_finite, wrap_angle,
 };
 use slam_features::Point;
 
@@ -113,10 +113,13 @@ impl MeasurementModel for RangeBearing {
             let position = point.position();
             let parts = self.innovation_parts(&to_sensor.transform_point3(&position))?;
             let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, to_sensor.rotation_3d());
+            let (dual, dim) = point.dual_columns();
+            let mut d_eta_d_own = DMatrix::zeros(0, 0);
+            chain_product_into(&d_eta_d_xf, &dual.columns(0, dim), &mut d_eta_d_own);
             Ok(OwnLinearization {
                 eta: DVector::from_column_slice(parts.eta.as_slice()),
                 cov_eta: dynamic(&chain_covariance(&parts.d_eta_d_v, &parts.cov_v)),
-                d_eta_d_own: dynamic(&chain_product(&d_eta_d_xf, &point.dual()?)),
+                d_eta_d_own,
             })
         };
         Some(own())
@@ -124,29 +127,37 @@ impl MeasurementModel for RangeBearing {
 
     /// The generic chain on stack matrices, as [`MeasurementModel::linearize_own`] with the
     /// sensor columns `J_eta_o J_os` and the robot's `J_eta_o J_os J_sr`; a point shares no
-    /// block. The EKF calls it for every pairing of a step.
+    /// block. The EKF calls it for every pairing of a step, with one `out` kept across
+    /// steps: once `out` has the shapes, no allocation.
     fn linearize_at(
         &self,
         point: &Point,
         frame: &SensorFrame,
-    ) -> Option<Result<LinearizedMeasurement>> {
-        let lin = || {
+        out: &mut LinearizedMeasurement,
+    ) -> Option<Result<()>> {
+        let mut lin = || {
             let position = point.position();
             let to_sensor = &frame.to_sensor;
             let (d_xo_d_sensor, d_xo_d_xm) = to_sensor.point3_jacobians(&position);
             let parts = self.innovation_parts(&to_sensor.transform_point3(&position))?;
             let d_eta_d_sensor = chain_product(&parts.d_eta_d_xo, &d_xo_d_sensor);
             let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, &d_xo_d_xm);
-            let d_eta_d_robot = chain_product(&d_eta_d_sensor, &frame.pose.d_sensor_d_robot);
-            Ok(LinearizedMeasurement {
-                eta: DVector::from_column_slice(parts.eta.as_slice()),
-                cov_eta: dynamic(&chain_covariance(&parts.d_eta_d_v, &parts.cov_v)),
-                d_eta_d_robot: dynamic(&d_eta_d_robot),
-                d_eta_d_sensor: dynamic(&d_eta_d_sensor),
-                d_eta_d_own: dynamic(&chain_product(&d_eta_d_xf, &point.dual()?)),
-                d_eta_d_shared: Vec::new(),
-                d_eta_d_xf: dynamic(&d_eta_d_xf),
-            })
+            let (dual, dim) = point.dual_columns();
+            assign_vector(&mut out.eta, parts.eta.as_slice());
+            assign_matrix(
+                &mut out.cov_eta,
+                &chain_covariance(&parts.d_eta_d_v, &parts.cov_v),
+            );
+            chain_product_into(
+                &d_eta_d_sensor,
+                &frame.pose.d_sensor_d_robot,
+                &mut out.d_eta_d_robot,
+            );
+            assign_matrix(&mut out.d_eta_d_sensor, &d_eta_d_sensor);
+            chain_product_into(&d_eta_d_xf, &dual.columns(0, dim), &mut out.d_eta_d_own);
+            out.d_eta_d_shared.clear();
+            assign_matrix(&mut out.d_eta_d_xf, &d_eta_d_xf);
+            Ok(())
         };
         Some(lin())
     }
@@ -174,12 +185,14 @@ impl MeasurementModel for RangeBearing {
         Point::new(hit).map(Some)
     }
 
+    /// The horizontal subspace while the point does not have it (no allocation once it
+    /// does: this runs for every sighting).
     fn revealed_subspaces(&self, point: &Point, _x_o: &Coordinates) -> Vec<&'static str> {
-        point
-            .growth_options()
-            .into_iter()
-            .filter(|s| s.name == slam_features::point::HORIZONTAL.name)
-            .map(|s| s.name)
-            .collect()
+        let horizontal = slam_features::point::HORIZONTAL.name;
+        if point.is_active(horizontal) {
+            Vec::new()
+        } else {
+            vec![horizontal]
+        }
     }
 }

@@ -21,6 +21,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use slam_core::nalgebra::{Vector2, Vector3};
 use slam_core::{Observation, Pose2, Pose3, RobotPose, wrap_angle};
+use std::sync::Arc;
 
 use std::collections::VecDeque;
 
@@ -341,7 +342,7 @@ fn observe_landmarks(
         )?;
         observations.push(Observation {
             robot_from_sensor: Pose3::identity(),
-            measurement: Box::new(measurement),
+            measurement: Arc::new(measurement),
             landmark_id: Some(landmark.id),
         });
     }

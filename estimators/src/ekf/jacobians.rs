@@ -88,10 +88,8 @@ fn project_out_dense(h: &DMatrix<f64>, n: &DMatrix<f64>) -> DMatrix<f64> {
 pub(super) fn stack(
     pairings: &[&Pairing],
 ) -> (Vec<usize>, DMatrix<f64>, DMatrix<f64>, DVector<f64>) {
-    let mut indices: Vec<usize> = pairings
-        .iter()
-        .flat_map(|p| p.indices.iter().copied())
-        .collect();
+    let mut indices = Vec::with_capacity(pairings.iter().map(|p| p.indices.len()).sum());
+    indices.extend(pairings.iter().flat_map(|p| p.indices.iter().copied()));
     indices.sort_unstable();
     indices.dedup();
     let m: usize = pairings.iter().map(|p| p.eta.len()).sum();

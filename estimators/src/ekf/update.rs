@@ -33,7 +33,10 @@ impl<P: RobotPose> Ekf<P> {
         decisions: Vec<Decision>,
     ) -> Result<UpdateReport> {
         let mut report = UpdateReport::default();
-        let mut features = StepFeatures::default();
+        let mut features = StepFeatures {
+            seen: Vec::with_capacity(decisions.len()),
+            grown: BTreeSet::new(),
+        };
         let mut batch = self.pair_and_start(observations, decisions, &mut report, &mut features)?;
         // Pairings of features that grew this step are linearized again, on their new rows.
         batch.retain(|p| !features.grown.contains(&p.feature));
@@ -64,7 +67,9 @@ impl<P: RobotPose> Ekf<P> {
         for &(index, id) in &features.seen {
             self.extend(id, &observations[index])?;
         }
-        let touched: BTreeSet<FeatureId> = features.seen.iter().map(|&(_, id)| id).collect();
+        let mut touched: Vec<FeatureId> = features.seen.iter().map(|&(_, id)| id).collect();
+        touched.sort_unstable();
+        touched.dedup();
         if self.params.join_corners {
             for &id in &touched {
                 self.join_corners_of(id)?;
@@ -86,7 +91,7 @@ impl<P: RobotPose> Ekf<P> {
         report: &mut UpdateReport,
         features: &mut StepFeatures,
     ) -> Result<Vec<Pairing>> {
-        let mut batch: Vec<Pairing> = Vec::new();
+        let mut batch: Vec<Pairing> = Vec::with_capacity(decisions.len());
         let mut new_observations = Vec::new();
         for (index, decision) in decisions.into_iter().enumerate() {
             match decision {

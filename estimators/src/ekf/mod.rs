@@ -38,7 +38,7 @@ mod views;
 use std::collections::{BTreeMap, HashMap};
 
 use serde::{Deserialize, Serialize};
-use slam_core::nalgebra::{DMatrix, DVector, SMatrix};
+use slam_core::nalgebra::{DMatrix, DVector, Dim, Matrix, RawStorage, SMatrix};
 use slam_core::{
     Error, Estimator, FeatureId, FeatureMap, LinearizedMeasurement, MotionModel, Observation,
     Result, RobotPose, RowOwner, Skips, UpdateReport, assign_matrix, assign_vector, reshape_zeroed,
@@ -215,7 +215,10 @@ impl EkfParams {
 }
 
 /// `eta^T S^-1 eta` for the inverse `s_inv` of an innovation covariance.
-fn quadratic_form(s_inv: &DMatrix<f64>, eta: &DVector<f64>) -> f64 {
+fn quadratic_form<D: Dim, S: RawStorage<f64, D, D>>(
+    s_inv: &Matrix<f64, D, D, S>,
+    eta: &DVector<f64>,
+) -> f64 {
     (0..eta.len())
         .map(|i| eta[i] * (0..eta.len()).map(|j| s_inv[(i, j)] * eta[j]).sum::<f64>())
         .sum()
@@ -492,69 +495,56 @@ impl<P: RobotPose> Ekf<P> {
             .map(|s_inv| quadratic_form(&s_inv, &pairing.eta))
     }
 
-    /// [`Ekf::mahalanobis`] for `M` measurement rows, the arithmetic of
-    /// [`Ekf::innovation_covariance`] and [`quadratic_form`] in the same order.
+    /// [`Ekf::mahalanobis`] for `M` measurement rows on the stack, the arithmetic of
+    /// [`Ekf::innovation_covariance`] and [`quadratic_form`].
     fn mahalanobis_fixed<const M: usize>(&self, pairing: &Pairing, tentative: bool) -> Option<f64> {
         const CAPACITY: usize = 64;
         let k = pairing.h.ncols();
         if pairing.h.nrows() != M || M * k > CAPACITY {
             return self.mahalanobis_dynamic(pairing, tentative);
         }
-        let indices = &pairing.indices;
-        // H C on the pairing's rows, C read in place; column-major as a DMatrix.
         let mut hc = [0.0; CAPACITY];
-        for b in 0..k {
-            for a in 0..k {
-                let c = self.cov.get(indices[a], indices[b]);
-                for i in 0..M {
-                    hc[i + M * b] += pairing.h[(i, a)] * c;
-                }
-            }
-        }
-        let s = SMatrix::<f64, M, M>::from_fn(|i, j| {
-            let s = (0..k)
-                .map(|b| hc[i + M * b] * pairing.h[(j, b)])
-                .sum::<f64>()
-                + pairing.cov_eta[(i, j)];
-            if tentative {
-                s + pairing.cov_eta[(i, j)]
-            } else {
-                s
-            }
-        });
-        let s_inv = s.try_inverse()?;
-        let eta = &pairing.eta;
-        Some(
-            (0..M)
-                .map(|i| eta[i] * (0..M).map(|j| s_inv[(i, j)] * eta[j]).sum::<f64>())
-                .sum(),
-        )
+        self.add_hc(pairing, &mut hc);
+        let s =
+            SMatrix::<f64, M, M>::from_fn(|i, j| innovation_entry(pairing, &hc, tentative, i, j));
+        Some(quadratic_form(&s.try_inverse()?, &pairing.eta))
     }
 
     /// `S = H C H^T + C_eta` of a pairing; for a tentative feature (no rows) the feature's own
     /// uncertainty is approximated by one more `C_eta` (it was placed by one measurement).
     fn innovation_covariance(&self, pairing: &Pairing, tentative: bool) -> DMatrix<f64> {
         let (m, k) = pairing.h.shape();
+        let mut hc = vec![0.0; m * k];
+        self.add_hc(pairing, &mut hc);
+        DMatrix::from_fn(m, m, |i, j| innovation_entry(pairing, &hc, tentative, i, j))
+    }
+
+    /// `hc += H C` on the pairing's rows (`m x k`, column-major), C read in place.
+    fn add_hc(&self, pairing: &Pairing, hc: &mut [f64]) {
+        let (m, k) = pairing.h.shape();
         let indices = &pairing.indices;
-        // H C on the pairing's rows, C read in place.
-        let mut hc = DMatrix::<f64>::zeros(m, k);
         for b in 0..k {
             for a in 0..k {
                 let c = self.cov.get(indices[a], indices[b]);
                 for i in 0..m {
-                    hc[(i, b)] += pairing.h[(i, a)] * c;
+                    hc[i + m * b] += pairing.h[(i, a)] * c;
                 }
             }
         }
-        DMatrix::from_fn(m, m, |i, j| {
-            let s = (0..k).map(|b| hc[(i, b)] * pairing.h[(j, b)]).sum::<f64>()
-                + pairing.cov_eta[(i, j)];
-            if tentative {
-                s + pairing.cov_eta[(i, j)]
-            } else {
-                s
-            }
-        })
+    }
+}
+
+/// Entry `(i, j)` of a pairing's `S` (see [`Ekf::innovation_covariance`]) from its `H C`.
+fn innovation_entry(pairing: &Pairing, hc: &[f64], tentative: bool, i: usize, j: usize) -> f64 {
+    let (m, k) = pairing.h.shape();
+    let s = (0..k)
+        .map(|b| hc[i + m * b] * pairing.h[(j, b)])
+        .sum::<f64>()
+        + pairing.cov_eta[(i, j)];
+    if tentative {
+        s + pairing.cov_eta[(i, j)]
+    } else {
+        s
     }
 }
 
@@ -731,6 +721,36 @@ mod tests {
         let s_inv = dense.try_inverse().unwrap();
         let nis = (pairing.eta.transpose() * &s_inv * &pairing.eta)[(0, 0)];
         assert!((quadratic_form(&s_inv, &pairing.eta) - nis).abs() < 1e-12);
+    }
+
+    /// The Mahalanobis distance on the stack (up to 4 rows) has the dynamic path's bits, and
+    /// more rows take the dynamic path.
+    #[test]
+    fn the_stack_mahalanobis_distance_equals_the_dynamic_one_bit_for_bit() {
+        let c = DMatrix::from_row_slice(3, 3, &[2.0, 0.3, -0.1, 0.3, 1.5, 0.2, -0.1, 0.2, 0.7]);
+        let ekf = Ekf::new(Pose2::new(1.0, 2.0, 0.3), c, EkfParams::default()).unwrap();
+        for m in 1..=6 {
+            let pairing =
+                Pairing {
+                    feature: FeatureId(0),
+                    indices: vec![2, 0, 1],
+                    h: DMatrix::from_fn(m, 3, |i, j| ((i * 3 + j) as f64 * 0.77).sin()),
+                    eta: DVector::from_fn(m, |i, _| 0.1 * (i as f64 + 1.0).cos()),
+                    cov_eta: DMatrix::from_fn(m, m, |i, j| {
+                        if i == j { 0.01 * (i + 1) as f64 } else { 0.0 }
+                    }),
+                    nis: None,
+                };
+            for tentative in [false, true] {
+                let stack = ekf.mahalanobis(&pairing, tentative).unwrap();
+                let dynamic = ekf.mahalanobis_dynamic(&pairing, tentative).unwrap();
+                assert_eq!(
+                    stack.to_bits(),
+                    dynamic.to_bits(),
+                    "{m} rows: {stack} {dynamic}"
+                );
+            }
+        }
     }
 
     /// Without a correction the constrained transition is `J_rr` itself.

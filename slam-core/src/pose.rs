@@ -590,6 +590,20 @@ pub trait RobotPose: Copy + Debug + PartialEq + Send + Sync + 'static {
             .collect()
     }
 
+    /// [`RobotPose::ominus`] appended to `out` (a particle filter's mean over its particles
+    /// takes every difference into one buffer, with no vector per particle).
+    ///
+    /// ```
+    /// use slam_core::{Pose2, RobotPose};
+    /// let (a, b) = (Pose2::new(0.0, 0.0, 3.1), Pose2::new(1.0, 0.0, -3.1));
+    /// let mut out = vec![7.0];
+    /// a.ominus_into(&b, &mut out);
+    /// assert_eq!(out[1..], a.ominus(&b)[..]);
+    /// ```
+    fn ominus_into(&self, other: &Self, out: &mut Vec<f64>) {
+        out.extend(self.ominus(other));
+    }
+
     /// How far apart two poses are: the distance between their positions and the largest
     /// wrapped difference of their angles (how much the robot moved or turned between them).
     ///
@@ -642,6 +656,15 @@ impl RobotPose for Pose2 {
             self.y - other.y,
             wrap_angle(self.theta - other.theta),
         ]
+    }
+
+    /// [`RobotPose::ominus`]'s numbers, pushed without a vector of their own.
+    fn ominus_into(&self, other: &Self, out: &mut Vec<f64>) {
+        out.extend_from_slice(&[
+            self.x - other.x,
+            self.y - other.y,
+            wrap_angle(self.theta - other.theta),
+        ]);
     }
 
     /// The default's arithmetic without its parameter vectors.

@@ -299,7 +299,7 @@ pub(crate) fn weighted_mean<P: RobotPose>(
     // The differences from the reference, one row of `dim` each, in one buffer.
     let mut differences = Vec::with_capacity(poses.len() * dim);
     for p in poses {
-        differences.extend(p.ominus(&reference));
+        p.ominus_into(&reference, &mut differences);
     }
     let mut mean = vec![0.0; dim];
     for (d, w) in differences.chunks_exact(dim).zip(&weights) {

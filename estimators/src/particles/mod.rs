@@ -345,7 +345,9 @@ pub(crate) fn sample_motion<P: RobotPose>(
             got: root.nrows(),
         });
     }
-    poses
+    // Collected by index first (one buffer; a parallel collect into `Result<Vec>` builds a
+    // list of pieces), the first error in particle order then reported.
+    let sampled: Vec<Result<P>> = poses
         .par_iter()
         .enumerate()
         .map(|(index, pose)| {
@@ -353,7 +355,8 @@ pub(crate) fn sample_motion<P: RobotPose>(
             let sampled = draw_control(&control, &root, &mut rng);
             motion.apply_control(pose, &sampled)
         })
-        .collect()
+        .collect();
+    sampled.into_iter().collect()
 }
 
 /// `control + root z` for `z` drawn from `N(0, I)` by `rng`, one allocation (the result):

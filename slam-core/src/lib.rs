@@ -54,7 +54,7 @@ pub use measurement::{
     OwnLinearization, SensorFrame, Triangulation, all_finite, assign_matrix, assign_vector,
     chain_covariance, chain_linearize_at, chain_linearize_own_at, chain_product,
     chain_product_into, innovation_at, linearize, linearize_at, linearize_at_into,
-    linearize_own_at, reshape_zeroed,
+    linearize_own_at, linearize_own_at_into, reshape_zeroed,
 };
 pub use motion::{MotionModel, MotionPrediction};
 pub use pose::{Pose2, Pose3, RobotPose, SensorPose, wrap_angle};

@@ -178,16 +178,19 @@ pub trait MeasurementModel: Clone + Debug + Send + Sync + 'static {
     }
 
     /// [`linearize_own_at`] written out for this model, for speed: FastSLAM's landmark
-    /// filters call it for every particle, observation and candidate. `None` (the default)
-    /// takes the generic chain. An override must return the chain's numbers bit for bit
-    /// ([`chain_product`] and [`chain_covariance`] are the chain's own products, for any
-    /// matrix sizes); [`crate::testing::assert_measurement_conforms`] checks it.
+    /// filters call it for every particle, observation and candidate. It writes into `out`,
+    /// reusing its storage as [`MeasurementModel::linearize_at`] does. `None` (the default)
+    /// takes the generic chain. An override must write the chain's numbers bit for bit
+    /// whatever `out` held ([`chain_product`] and [`chain_covariance`] are the chain's own
+    /// products, for any matrix sizes); [`crate::testing::assert_measurement_conforms`]
+    /// checks it.
     fn linearize_own(
         &self,
         feature: &Self::Feature,
         to_sensor: &MapToSensor,
-    ) -> Option<Result<OwnLinearization>> {
-        let _ = (feature, to_sensor);
+        out: &mut OwnLinearization,
+    ) -> Option<Result<()>> {
+        let _ = (feature, to_sensor, out);
         None
     }
 
@@ -292,8 +295,9 @@ pub trait DynMeasurementModel: Debug + Send + Sync {
         &self,
         feature: &dyn Feature,
         to_sensor: &MapToSensor,
-    ) -> Option<Result<OwnLinearization>> {
-        let _ = (feature, to_sensor);
+        out: &mut OwnLinearization,
+    ) -> Option<Result<()>> {
+        let _ = (feature, to_sensor, out);
         None
     }
 
@@ -392,8 +396,9 @@ impl<M: MeasurementModel> DynMeasurementModel for M {
         &self,
         feature: &dyn Feature,
         to_sensor: &MapToSensor,
-    ) -> Option<Result<OwnLinearization>> {
-        self.linearize_own(downcast_feature::<M::Feature>(feature)?, to_sensor)
+        out: &mut OwnLinearization,
+    ) -> Option<Result<()>> {
+        self.linearize_own(downcast_feature::<M::Feature>(feature)?, to_sensor, out)
     }
 
     fn linearize_at_dyn(
@@ -640,7 +645,8 @@ where
 
 /// What a filter over one feature alone needs of a linearization (FastSLAM's landmark
 /// filters, where the robot pose is given): the fields of [`LinearizedMeasurement`] of the
-/// same name, equal to them bit for bit, without the robot and sensor columns.
+/// same name, equal to them bit for bit, without the robot and sensor columns. The default
+/// holds empty matrices (a buffer for [`linearize_own_at_into`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct OwnLinearization {
     /// `eta` at the current estimate.
@@ -649,6 +655,16 @@ pub struct OwnLinearization {
     pub cov_eta: DMatrix<f64>,
     /// `J_eta_o J_of B~`: with respect to the feature's own M-space perturbation.
     pub d_eta_d_own: DMatrix<f64>,
+}
+
+impl Default for OwnLinearization {
+    fn default() -> Self {
+        OwnLinearization {
+            eta: DVector::zeros(0),
+            cov_eta: DMatrix::zeros(0, 0),
+            d_eta_d_own: DMatrix::zeros(0, 0),
+        }
+    }
 }
 
 /// [`linearize_at`] reduced to [`OwnLinearization`]: the innovation, its covariance and the
@@ -669,9 +685,36 @@ pub fn linearize_own_at(
     feature: &dyn Feature,
     to_sensor: &MapToSensor,
 ) -> Result<OwnLinearization> {
-    match measurement.linearize_own_dyn(feature, to_sensor) {
-        Some(own) => own,
-        None => chain_linearize_own_at(measurement, feature, to_sensor),
+    let mut out = OwnLinearization::default();
+    linearize_own_at_into(measurement, feature, to_sensor, &mut out)?;
+    Ok(out)
+}
+
+/// [`linearize_own_at`] into `out`, reusing its storage when the model writes its own
+/// ([`MeasurementModel::linearize_own`]); the generic chain replaces `out`. The numbers are
+/// [`linearize_own_at`]'s whatever `out` held; on an error `out` holds no meaningful numbers.
+///
+/// ```
+/// use slam_core::{linearize_own_at, linearize_own_at_into, OwnLinearization, Pose2, Pose3, SensorFrame};
+/// # fn demo(measurement: &dyn slam_core::DynMeasurementModel, feature: &dyn slam_core::Feature) -> slam_core::Result<()> {
+/// let frame = SensorFrame::new(&Pose2::new(1.0, 0.0, 0.3), &Pose3::identity())?;
+/// let mut kept = OwnLinearization::default();
+/// linearize_own_at_into(measurement, feature, &frame.to_sensor, &mut kept)?;
+/// assert_eq!(kept, linearize_own_at(measurement, feature, &frame.to_sensor)?);
+/// # Ok(()) }
+/// ```
+pub fn linearize_own_at_into(
+    measurement: &dyn DynMeasurementModel,
+    feature: &dyn Feature,
+    to_sensor: &MapToSensor,
+    out: &mut OwnLinearization,
+) -> Result<()> {
+    match measurement.linearize_own_dyn(feature, to_sensor, out) {
+        Some(done) => done,
+        None => {
+            *out = chain_linearize_own_at(measurement, feature, to_sensor)?;
+            Ok(())
+        }
     }
 }
 

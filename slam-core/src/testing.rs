@@ -22,9 +22,9 @@ use nalgebra::{DMatrix, DVector, Vector3, Vector6};
 use crate::coords::CoordBlock;
 use crate::feature::Feature;
 use crate::measurement::{
-    DynMeasurementModel, LinearizedMeasurement, MeasurementModel, SensorFrame, chain_linearize_at,
-    chain_linearize_own_at, innovation_at, linearize, linearize_at, linearize_at_into,
-    linearize_own_at,
+    DynMeasurementModel, LinearizedMeasurement, MeasurementModel, OwnLinearization, SensorFrame,
+    chain_linearize_at, chain_linearize_own_at, innovation_at, linearize, linearize_at,
+    linearize_at_into, linearize_own_at, linearize_own_at_into,
 };
 use crate::pose::{Pose2, Pose3, RobotPose};
 use crate::transform::MapToSensor;
@@ -845,6 +845,23 @@ pub fn check_measurement<M: MeasurementModel>(
             cfg,
             format!(
                 "the model's own differs from the generic chain: {own:?} against {own_chain:?}"
+            ),
+        );
+    }
+    // Written into a buffer that held other shapes and numbers, the same.
+    let mut reused = OwnLinearization {
+        eta: DVector::from_element(7, f64::NAN),
+        cov_eta: DMatrix::from_element(1, 1, f64::NAN),
+        d_eta_d_own: DMatrix::from_element(8, 8, f64::NAN),
+    };
+    linearize_own_at_into(dyn_model, feature, &frame_3d.to_sensor, &mut reused)
+        .or_else(|e| fail("linearize_own_at_into", cfg, e.to_string()))?;
+    if reused != own_chain {
+        return fail(
+            "linearize_own_at_into",
+            cfg,
+            format!(
+                "into a used buffer it differs from the generic chain: {reused:?} against {own_chain:?}"
             ),
         );
     }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use slam_core::nalgebra::{DMatrix, DVector};
 use slam_core::{
     DynMeasurementModel, Extension, Feature, FeatureMap, Observation, OwnLinearization, Pose3,
-    Result, RobotPose, SensorFrame, Skips, linearize_own_at,
+    Result, RobotPose, SensorFrame, Skips, linearize_own_at, linearize_own_at_into,
 };
 
 use super::small;
@@ -171,19 +171,22 @@ impl<P: RobotPose> LandmarkMap<P> {
 
 impl<P: RobotPose> Landmark<P> {
     /// The observation linearized at this feature from the sensor `frame` (the frame of the
-    /// observation's sensor at the particle's pose, made once for all of its candidates).
-    /// `None` when the measurement cannot be linearized.
+    /// observation's sensor at the particle's pose, made once for all of its candidates),
+    /// written into `spare`'s storage. `None` when the measurement cannot be linearized.
     pub(super) fn linearize(
         &self,
         observation: &Observation,
         frame: &SensorFrame,
+        mut spare: OwnLinearization,
     ) -> Option<OwnLinearization> {
-        linearize_own_at(
+        linearize_own_at_into(
             observation.measurement.as_ref(),
             self.feature.as_ref(),
             &frame.to_sensor,
+            &mut spare,
         )
-        .ok()
+        .ok()?;
+        Some(spare)
     }
 
     /// `(ln N(eta; 0, S), eta^T S^-1 eta, dim eta)` of a measurement of this feature

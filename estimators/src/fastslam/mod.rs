@@ -47,7 +47,7 @@ use crate::association::{Association, AssociationSettings, Gates};
 use crate::lifecycle::{LifecycleSettings, first_failure};
 use crate::particles::{ParticleSet, stream};
 use landmark::{Landmark, LandmarkMap, MergeSettings};
-use step::{ParticleStep, StepContext};
+use step::{ParticleStep, StepContext, Workspace};
 
 /// How particles draw their poses.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -384,11 +384,14 @@ impl<P: RobotPose> Estimator<P> for FastSlam<P> {
             .particles
             .par_iter_mut()
             .enumerate()
-            .map(|(index, particle)| {
+            .map_init(Workspace::default, |workspace, (index, particle)| {
+                let rng = stream(seed, draw, index as u64);
                 let mut work =
-                    ParticleStep::new(&context, particle, stream(seed, draw, index as u64));
+                    ParticleStep::new(&context, particle, rng, std::mem::take(workspace));
                 work.run(observations)?;
-                Ok(work.finish())
+                let (log_likelihood, report, kept) = work.finish();
+                *workspace = kept;
+                Ok((log_likelihood, report))
             })
             .collect();
         let mut reports = Vec::with_capacity(results.len());

@@ -94,6 +94,26 @@ fn shared_views(
         .collect()
 }
 
+/// Storage one worker reuses from particle to particle: linearizations no longer needed
+/// (a candidate not chosen, a pairing done), so that the next are written without
+/// allocating.
+#[derive(Default)]
+pub(super) struct Workspace {
+    spare_linearizations: Vec<OwnLinearization>,
+}
+
+impl Workspace {
+    /// A linearization buffer: a spare one, or a new one.
+    fn linearization(&mut self) -> OwnLinearization {
+        self.spare_linearizations.pop().unwrap_or_default()
+    }
+
+    /// Keeps `lin`'s storage for a later linearization.
+    fn recycle(&mut self, lin: OwnLinearization) {
+        self.spare_linearizations.push(lin);
+    }
+}
+
 /// The per-particle work of one update step.
 pub(super) struct ParticleStep<'a, 'c, P: RobotPose> {
     pub context: &'c StepContext<'a>,
@@ -113,6 +133,8 @@ pub(super) struct ParticleStep<'a, 'c, P: RobotPose> {
     chosen: Vec<Option<Chosen>>,
     /// Slots the step's pairings changed (their association linearizations are stale).
     touched: Vec<usize>,
+    /// The worker's reusable storage.
+    workspace: Workspace,
 }
 
 impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
@@ -120,6 +142,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         context: &'c StepContext<'a>,
         particle: &'c mut Particle<P, LandmarkMap<P>>,
         rng: ChaCha8Rng,
+        workspace: Workspace,
     ) -> Self {
         ParticleStep {
             context,
@@ -132,6 +155,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             frames_pose: None,
             chosen: Vec::new(),
             touched: Vec::new(),
+            workspace,
         }
     }
 
@@ -148,9 +172,9 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         }
     }
 
-    /// The step's log-likelihood and report.
-    pub(super) fn finish(self) -> (f64, UpdateReport) {
-        (self.log_likelihood, self.report)
+    /// The step's log-likelihood and report, and the workspace for the next particle.
+    pub(super) fn finish(self) -> (f64, UpdateReport, Workspace) {
+        (self.log_likelihood, self.report, self.workspace)
     }
 
     pub(super) fn run(&mut self, observations: &[Observation]) -> Result<()> {
@@ -204,6 +228,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
                         particle,
                         self.context,
                         &mut self.report,
+                        &mut self.workspace,
                         observation,
                         frames[index].as_deref(),
                         &placed[index],
@@ -222,7 +247,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             ))
         })?;
         for ((index, mut list), choice) in open.into_iter().zip(lists).zip(choices) {
-            decisions[index] = Some(match choice {
+            let decision = match choice {
                 Choice::Pair(k) => {
                     let candidate = list.swap_remove(k);
                     self.chosen[index] = Some(Chosen {
@@ -245,7 +270,11 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
                             Some(best.map_or(l, |b| b.max(l)))
                         }),
                 ),
-            });
+            };
+            decisions[index] = Some(decision);
+            for candidate in list {
+                self.workspace.recycle(candidate.data.lin);
+            }
         }
         Ok(decisions
             .into_iter()
@@ -286,9 +315,10 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
         let (lin, likelihood) = match chosen {
             Some(Scored { lin, likelihood }) => (Some(lin), Some(likelihood)),
             None => {
+                let spare = self.workspace.linearization();
                 let lin = frame
                     .as_ref()
-                    .and_then(|frame| landmark.linearize(observation, frame));
+                    .and_then(|frame| landmark.linearize(observation, frame, spare));
                 let likelihood = lin.as_ref().and_then(|lin| landmark.likelihood(lin));
                 (lin, likelihood)
             }
@@ -337,7 +367,9 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             // A sighting does not change the feature: the pairing's linearization holds.
             landmark.update_linearized(&lin, skips);
         }
-        landmark.extend(observation, &pose, skips)
+        let extended = landmark.extend(observation, &pose, skips);
+        self.workspace.recycle(lin);
+        extended
     }
 
     /// The association's linearization and likelihood of observation `index` with the
@@ -536,10 +568,12 @@ fn near_any<'f, P: RobotPose>(
 /// likelihoods, nearest first. `nearby` is the particle's features that may be near one of
 /// the step's observations ([`near_any`]); the sensor's frame at the
 /// particle's pose is made once for all of them.
+#[allow(clippy::too_many_arguments)] // the particle, the step, the observation's three parts
 fn candidates<'f, P: RobotPose>(
     particle: &'f Particle<P, LandmarkMap<P>>,
     context: &StepContext<'_>,
     report: &mut UpdateReport,
+    workspace: &mut Workspace,
     observation: &Observation,
     frame: Option<&SensorFrame>,
     placed: &Placed,
@@ -572,10 +606,15 @@ fn candidates<'f, P: RobotPose>(
         let Some(landmark) = landmarks.get(slot) else {
             continue;
         };
-        let scored = landmark.linearize(observation, frame).and_then(|lin| {
-            let likelihood = landmark.likelihood(&lin)?;
-            Some(Scored { lin, likelihood })
-        });
+        let scored = landmark
+            .linearize(observation, frame, workspace.linearization())
+            .and_then(|lin| match landmark.likelihood(&lin) {
+                Some(likelihood) => Some(Scored { lin, likelihood }),
+                None => {
+                    workspace.recycle(lin);
+                    None
+                }
+            });
         let Some(scored) = scored else {
             report
                 .skipped

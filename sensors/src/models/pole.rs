@@ -9,7 +9,7 @@ use slam_core::{
 };
 use slam_features::Pole;
 
-use super::{check_sigmas, dynamic, scan_plane_to_world};
+use super::{check_sigmas, scan_plane_to_world};
 
 /// Range and bearing to a [`Pole`]'s centre in the scan plane, and its radius.
 ///
@@ -88,15 +88,8 @@ fn scalar_and_point2(d_centre: &Matrix2<f64>) -> Matrix3<f64> {
     d_xo_d_xm
 }
 
-/// `J_eta_f B~`: a full pole's `B~` is the identity, a tentative pole's has no columns
-/// (Table II); the product as the chain takes it.
-fn own_columns(pole: &Pole, d_eta_d_xf: &Matrix3<f64>) -> DMatrix<f64> {
-    let mut own = DMatrix::zeros(0, 0);
-    own_columns_into(pole, d_eta_d_xf, &mut own);
-    own
-}
-
-/// [`own_columns`] into `out`, its storage reused.
+/// `J_eta_f B~` into `out` (its storage reused): a full pole's `B~` is the identity, a
+/// tentative pole's has no columns (Table II); the product as the chain takes it.
 fn own_columns_into(pole: &Pole, d_eta_d_xf: &Matrix3<f64>, out: &mut DMatrix<f64>) {
     if pole.mspace_dim() == 3 {
         chain_product_into(d_eta_d_xf, &Matrix3::identity(), out);
@@ -137,18 +130,21 @@ impl MeasurementModel for PoleObservation {
         &self,
         pole: &Pole,
         to_sensor: &MapToSensor,
-    ) -> Option<Result<OwnLinearization>> {
-        let own = || {
+        out: &mut OwnLinearization,
+    ) -> Option<Result<()>> {
+        let mut own = || {
             let rotation = to_sensor.rotation_2d()?;
             let centre = to_sensor.transform_point2(&pole.centre())?;
             let parts = self.innovation_parts(pole.radius(), &centre)?;
             let d_xo_d_xm = scalar_and_point2(rotation);
             let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, &d_xo_d_xm);
-            Ok(OwnLinearization {
-                eta: DVector::from_column_slice(parts.eta.as_slice()),
-                cov_eta: dynamic(&chain_covariance(&parts.d_eta_d_v, &parts.cov_v)),
-                d_eta_d_own: own_columns(pole, &d_eta_d_xf),
-            })
+            assign_vector(&mut out.eta, parts.eta.as_slice());
+            assign_matrix(
+                &mut out.cov_eta,
+                &chain_covariance(&parts.d_eta_d_v, &parts.cov_v),
+            );
+            own_columns_into(pole, &d_eta_d_xf, &mut out.d_eta_d_own);
+            Ok(())
         };
         Some(own())
     }

@@ -1,6 +1,6 @@
 //! Range and bearing from a planar sensor to a point landmark (the classic EKF-SLAM case).
 
-use slam_core::nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Vector2, Vector3};
+use slam_core::nalgebra::{DVector, Matrix2, Matrix2x3, Vector2, Vector3};
 use slam_core::{
     CoordBlock, Coordinates, Error, Innovation, LinearizedMeasurement, MapToSensor,
     MeasurementModel, OwnLinearization, Pose3, Result, SensorFrame, assign_matrix, assign_vector,
@@ -108,19 +108,20 @@ impl MeasurementModel for RangeBearing {
         &self,
         point: &Point,
         to_sensor: &MapToSensor,
-    ) -> Option<Result<OwnLinearization>> {
-        let own = || {
+        out: &mut OwnLinearization,
+    ) -> Option<Result<()>> {
+        let mut own = || {
             let position = point.position();
             let parts = self.innovation_parts(&to_sensor.transform_point3(&position))?;
             let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, to_sensor.rotation_3d());
             let (dual, dim) = point.dual_columns();
-            let mut d_eta_d_own = DMatrix::zeros(0, 0);
-            chain_product_into(&d_eta_d_xf, &dual.columns(0, dim), &mut d_eta_d_own);
-            Ok(OwnLinearization {
-                eta: DVector::from_column_slice(parts.eta.as_slice()),
-                cov_eta: dynamic(&chain_covariance(&parts.d_eta_d_v, &parts.cov_v)),
-                d_eta_d_own,
-            })
+            assign_vector(&mut out.eta, parts.eta.as_slice());
+            assign_matrix(
+                &mut out.cov_eta,
+                &chain_covariance(&parts.d_eta_d_v, &parts.cov_v),
+            );
+            chain_product_into(&d_eta_d_xf, &dual.columns(0, dim), &mut out.d_eta_d_own);
+            Ok(())
         };
         Some(own())
     }

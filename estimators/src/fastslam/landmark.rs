@@ -169,6 +169,14 @@ impl<P: RobotPose> LandmarkMap<P> {
     }
 }
 
+/// A landmark update's state change and new covariance, kept by a worker so that the next
+/// update writes into their storage.
+#[derive(Debug, Default)]
+pub(super) struct UpdateBuffers {
+    dx: DVector<f64>,
+    cov: DMatrix<f64>,
+}
+
 impl<P: RobotPose> Landmark<P> {
     /// The observation linearized at this feature from the sensor `frame` (the frame of the
     /// observation's sensor at the particle's pose, made once for all of its candidates),
@@ -245,25 +253,36 @@ impl<P: RobotPose> Landmark<P> {
     /// [`Landmark::update`] with the measurement already linearized at this feature (as it
     /// is now) from the sensor's pose. Returns whether the update was applied.
     pub(super) fn update_linearized(&mut self, lin: &OwnLinearization, skips: &mut Skips) -> bool {
+        self.update_linearized_with(lin, skips, &mut UpdateBuffers::default())
+    }
+
+    /// [`Landmark::update_linearized`] through `buffers` (a worker's, reused): the new
+    /// covariance is written there and swapped in, the old one's storage left for the next.
+    pub(super) fn update_linearized_with(
+        &mut self,
+        lin: &OwnLinearization,
+        skips: &mut Skips,
+        buffers: &mut UpdateBuffers,
+    ) -> bool {
         let n = self.feature.mspace_dim();
         if n == 0 || self.cov.shape() != (n, n) {
             return false;
         }
-        let Some((dx, cov)) = self.ekf_step(lin) else {
+        if !self.ekf_step(lin, buffers) {
             skips.count("update: innovation covariance not positive definite");
             return false;
-        };
-        if !dx.iter().all(|v| v.is_finite()) {
+        }
+        if !buffers.dx.iter().all(|v| v.is_finite()) {
             skips.count("update: non-finite state change");
             return false;
         }
         // A refused change leaves the feature as it was (the `Feature` contract, checked by
         // the conformance suite), so no copy is kept to fall back on.
-        if self.feature.apply_perturbation(&dx).is_err() {
+        if self.feature.apply_perturbation(&buffers.dx).is_err() {
             skips.count("update: state change refused by the feature");
             return false;
         }
-        self.cov = cov;
+        std::mem::swap(&mut self.cov, &mut buffers.cov);
         true
     }
 
@@ -323,22 +342,25 @@ impl<P: RobotPose> Landmark<P> {
     }
 
     /// `dx = -K eta` and the Joseph-form covariance `(I - K H) P (I - K H)^T + K C K^T`
-    /// (symmetrized) for `K = P H^T S^-1`, `S = H P H^T + C`; on the stack for small sizes.
-    /// `None` when `S` is not positive definite.
-    fn ekf_step(&self, lin: &OwnLinearization) -> Option<(DVector<f64>, DMatrix<f64>)> {
+    /// (symmetrized) for `K = P H^T S^-1`, `S = H P H^T + C`, written into `buffers`; on the
+    /// stack for small sizes. `false` when `S` is not positive definite.
+    fn ekf_step(&self, lin: &OwnLinearization, buffers: &mut UpdateBuffers) -> bool {
         let (h, p, c) = (&lin.d_eta_d_own, &self.cov, &lin.cov_eta);
-        if let Some(small) = small::update(&lin.eta, c, h, p) {
-            return small;
+        if let Some(small) =
+            small::update_into(&lin.eta, c, h, p, &mut buffers.dx, &mut buffers.cov)
+        {
+            return small.is_some();
         }
         let ph_t = p * h.transpose();
-        let k = (h * &ph_t + c)
-            .cholesky()?
-            .solve(&ph_t.transpose())
-            .transpose();
-        let dx = -(&k * &lin.eta);
+        let Some(cholesky) = (h * &ph_t + c).cholesky() else {
+            return false;
+        };
+        let k = cholesky.solve(&ph_t.transpose()).transpose();
+        buffers.dx = -(&k * &lin.eta);
         let i_kh = DMatrix::identity(p.nrows(), p.nrows()) - &k * h;
         let cov = &i_kh * p * i_kh.transpose() + &k * c * k.transpose();
-        Some((dx, 0.5 * (&cov + cov.transpose())))
+        buffers.cov = 0.5 * (&cov + cov.transpose());
+        true
     }
 
     /// Grows the feature (the shared lifecycle rule) with block-diagonal priors for its new

@@ -5,6 +5,7 @@
 //! Other sizes return `None` and take the dynamic path; the two are compared in the tests.
 
 use slam_core::nalgebra::{DMatrix, DVector, SMatrix, SVector};
+use slam_core::{assign_matrix, assign_vector};
 
 use crate::particles::log_normal;
 
@@ -37,16 +38,34 @@ pub(super) fn log_likelihood(
 /// The EKF step `dx = -K eta` and the Joseph-form covariance of
 /// [`super::landmark::Landmark::update_linearized`]. `None` when the size is not a stack
 /// size; `Some(None)` when `S` is not positive definite.
+#[cfg(test)]
 pub(super) fn update(
     eta: &DVector<f64>,
     cov_eta: &DMatrix<f64>,
     h: &DMatrix<f64>,
     cov: &DMatrix<f64>,
 ) -> Option<Option<(DVector<f64>, DMatrix<f64>)>> {
+    let (mut dx, mut updated) = (DVector::zeros(0), DMatrix::zeros(0, 0));
+    update_into(eta, cov_eta, h, cov, &mut dx, &mut updated)
+        .map(|written| written.map(|()| (dx, updated)))
+}
+
+/// [`update`] written into `dx` and `updated` (their storage reused).
+pub(super) fn update_into(
+    eta: &DVector<f64>,
+    cov_eta: &DMatrix<f64>,
+    h: &DMatrix<f64>,
+    cov: &DMatrix<f64>,
+    dx: &mut DVector<f64>,
+    updated: &mut DMatrix<f64>,
+) -> Option<Option<()>> {
     macro_rules! sized {
         ($($m:literal, $n:literal);*) => {
             match (eta.len(), h.ncols()) {
-                $(($m, $n) => Some(step::<$m, $n>(eta, cov_eta, h, cov)),)*
+                $(($m, $n) => Some(step::<$m, $n>(eta, cov_eta, h, cov).map(|(d, c)| {
+                    assign_vector(dx, d.as_slice());
+                    assign_matrix(updated, &c);
+                })),)*
                 _ => None,
             }
         };
@@ -95,7 +114,7 @@ fn step<const M: usize, const N: usize>(
     cov_eta: &DMatrix<f64>,
     h: &DMatrix<f64>,
     cov: &DMatrix<f64>,
-) -> Option<(DVector<f64>, DMatrix<f64>)> {
+) -> Option<(SVector<f64, N>, SMatrix<f64, N, N>)> {
     let eta = SVector::<f64, M>::from_column_slice(eta.as_slice());
     let h = SMatrix::<f64, M, N>::from_column_slice(h.as_slice());
     let p = SMatrix::<f64, N, N>::from_column_slice(cov.as_slice());
@@ -106,11 +125,7 @@ fn step<const M: usize, const N: usize>(
     let dx = -(k * eta);
     let i_kh = SMatrix::<f64, N, N>::identity() - k * h;
     let updated = i_kh * p * i_kh.transpose() + k * c * k.transpose();
-    let symmetric = 0.5 * (updated + updated.transpose());
-    Some((
-        DVector::from_column_slice(dx.as_slice()),
-        DMatrix::from_column_slice(N, N, symmetric.as_slice()),
-    ))
+    Some((dx, 0.5 * (updated + updated.transpose())))
 }
 
 #[cfg(test)]

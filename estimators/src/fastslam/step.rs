@@ -11,7 +11,7 @@ use slam_core::{
     SensorFrame, UpdateReport,
 };
 
-use super::landmark::{Landmark, LandmarkMap};
+use super::landmark::{Landmark, LandmarkMap, UpdateBuffers};
 use super::{FastSlamParams, Proposal};
 use crate::association::{
     BoundingBox, Candidate, Choice, Gates, Placed, associate, candidate_features_in, crowded,
@@ -100,6 +100,8 @@ fn shared_views(
 #[derive(Default)]
 pub(super) struct Workspace {
     spare_linearizations: Vec<OwnLinearization>,
+    /// A landmark update's state change and covariance.
+    update: UpdateBuffers,
 }
 
 impl Workspace {
@@ -365,7 +367,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
             )?;
         } else if confirmed {
             // A sighting does not change the feature: the pairing's linearization holds.
-            landmark.update_linearized(&lin, skips);
+            landmark.update_linearized_with(&lin, skips, &mut self.workspace.update);
         }
         let extended = landmark.extend(observation, &pose, skips);
         self.workspace.recycle(lin);

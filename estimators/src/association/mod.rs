@@ -250,7 +250,43 @@ pub(crate) fn candidate_features_in<'a, K>(
     margin: f64,
     skips: &mut Skips,
 ) -> Vec<(K, &'a dyn Feature, Coordinates)> {
-    let near = match placed {
+    // Room for every offered feature up to a few (the usual case), grown past that.
+    let mut out = Vec::with_capacity(features.size_hint().1.unwrap_or(0).min(16));
+    let near = Nearness {
+        placed,
+        to_sensor,
+        margin,
+    };
+    visit_candidate_features(
+        features,
+        measurement,
+        &near,
+        skips,
+        |key, feature, x_o, _| {
+            out.push((key, feature, x_o));
+        },
+    );
+    out
+}
+
+/// Where an observation's candidates are looked for: the [`placed_box`] of the feature it
+/// would start, the map-to-sensor transform, and the margin around the box.
+pub(crate) struct Nearness<'n> {
+    pub placed: &'n Placed,
+    pub to_sensor: &'n MapToSensor,
+    pub margin: f64,
+}
+
+/// [`candidate_features_in`] without collecting: `visit` gets each candidate with its
+/// coordinates in the sensor frame, and `skips` to count with.
+pub(crate) fn visit_candidate_features<'a, K>(
+    features: impl Iterator<Item = (K, &'a dyn Feature)>,
+    measurement: &dyn DynMeasurementModel,
+    nearness: &Nearness<'_>,
+    skips: &mut Skips,
+    mut visit: impl FnMut(K, &'a dyn Feature, Coordinates, &mut Skips),
+) {
+    let near = match nearness.placed {
         Placed::At(near) => Some(near),
         Placed::Nowhere => None,
         Placed::Failed => {
@@ -258,26 +294,23 @@ pub(crate) fn candidate_features_in<'a, K>(
             None
         }
     };
-    // Room for every offered feature up to a few (the usual case), grown past that.
-    let mut out = Vec::with_capacity(features.size_hint().1.unwrap_or(0).min(16));
     for (key, feature) in features {
         if !measurement.accepts(feature) {
             continue;
         }
         if let Some(near) = near
-            && !BoundingBox::of(feature.coordinates()).near(near, margin)
+            && !BoundingBox::of(feature.coordinates()).near(near, nearness.margin)
         {
             continue;
         }
-        let Ok(x_o) = to_sensor.transform(feature.coordinates()) else {
+        let Ok(x_o) = nearness.to_sensor.transform(feature.coordinates()) else {
             skips.count("association: feature not transformable into the sensor frame");
             continue;
         };
         if measurement.plausible_dyn(feature, &x_o) {
-            out.push((key, feature, x_o));
+            visit(key, feature, x_o, skips);
         }
     }
-    out
 }
 
 /// Largest angle between a new feature and an existing one for the clearance rule, rad.

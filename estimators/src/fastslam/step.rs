@@ -14,8 +14,8 @@ use slam_core::{
 use super::landmark::{Landmark, LandmarkMap, UpdateBuffers};
 use super::{FastSlamParams, Proposal};
 use crate::association::{
-    BoundingBox, Candidate, Choice, Gates, Placed, associate, candidate_features_in, crowded,
-    placed_box, sort_by_distance,
+    BoundingBox, Candidate, Choice, Gates, Nearness, Placed, associate, crowded, placed_box,
+    sort_by_distance, visit_candidate_features,
 };
 use crate::lifecycle::{Sighting, Track};
 use crate::particles::{Particle, log_normal};
@@ -100,11 +100,26 @@ fn shared_views(
 #[derive(Default)]
 pub(super) struct Workspace {
     spare_linearizations: Vec<OwnLinearization>,
+    /// Emptied candidate lists.
+    spare_lists: Vec<Vec<Candidate<Scored>>>,
     /// A landmark update's state change and covariance.
     update: UpdateBuffers,
 }
 
 impl Workspace {
+    /// An empty candidate list: a spare one, or a new one.
+    fn candidate_list(&mut self) -> Vec<Candidate<Scored>> {
+        self.spare_lists.pop().unwrap_or_default()
+    }
+
+    /// Keeps the linearizations of `list` and the list itself for later use.
+    fn recycle_list(&mut self, mut list: Vec<Candidate<Scored>>) {
+        for candidate in list.drain(..) {
+            self.recycle(candidate.data.lin);
+        }
+        self.spare_lists.push(list);
+    }
+
     /// A linearization buffer: a spare one, or a new one.
     fn linearization(&mut self) -> OwnLinearization {
         self.spare_linearizations.pop().unwrap_or_default()
@@ -274,9 +289,7 @@ impl<'a, 'c, P: RobotPose> ParticleStep<'a, 'c, P> {
                 ),
             };
             decisions[index] = Some(decision);
-            for candidate in list {
-                self.workspace.recycle(candidate.data.lin);
-            }
+            self.workspace.recycle_list(list);
         }
         Ok(decisions
             .into_iter()
@@ -589,49 +602,50 @@ fn candidates<'f, P: RobotPose>(
     };
     let landmarks = &particle.map.landmarks;
     let margin = context.params.association_margin;
-    // The boxes kept from the map's search first (`candidate_features_in` applies the same
+    // The boxes kept from the map's search first (`visit_candidate_features` applies the same
     // test again to the few that pass).
     let near_placed = nearby.iter().filter(|(_, _, bbox)| match placed {
         Placed::At(near) => bbox.near(near, margin),
         _ => true,
     });
-    let near = candidate_features_in(
+    let nearness = Nearness {
+        placed,
+        to_sensor: &frame.to_sensor,
+        margin,
+    };
+    let mut list = workspace.candidate_list();
+    visit_candidate_features(
         near_placed.map(|&(slot, feature, _)| (slot, feature)),
         observation.measurement.as_ref(),
-        placed,
-        &frame.to_sensor,
-        margin,
+        &nearness,
         &mut report.skipped,
-    );
-    let mut list = Vec::with_capacity(near.len());
-    for (slot, feature, _) in near {
-        let Some(landmark) = landmarks.get(slot) else {
-            continue;
-        };
-        let scored = landmark
-            .linearize(observation, frame, workspace.linearization())
-            .and_then(|lin| match landmark.likelihood(&lin) {
-                Some(likelihood) => Some(Scored { lin, likelihood }),
-                None => {
-                    workspace.recycle(lin);
-                    None
-                }
+        |slot, feature, _, skips| {
+            let Some(landmark) = landmarks.get(slot) else {
+                return;
+            };
+            let scored = landmark
+                .linearize(observation, frame, workspace.linearization())
+                .and_then(|lin| match landmark.likelihood(&lin) {
+                    Some(likelihood) => Some(Scored { lin, likelihood }),
+                    None => {
+                        workspace.recycle(lin);
+                        None
+                    }
+                });
+            let Some(scored) = scored else {
+                skips.count("association: candidate likelihood not computable");
+                return;
+            };
+            let (_, d2, dof) = scored.likelihood;
+            list.push(Candidate {
+                feature: slot,
+                distance: d2,
+                dof,
+                tentative: feature.mspace_dim() == 0,
+                data: scored,
             });
-        let Some(scored) = scored else {
-            report
-                .skipped
-                .count("association: candidate likelihood not computable");
-            continue;
-        };
-        let (_, d2, dof) = scored.likelihood;
-        list.push(Candidate {
-            feature: slot,
-            distance: d2,
-            dof,
-            tentative: feature.mspace_dim() == 0,
-            data: scored,
-        });
-    }
+        },
+    );
     sort_by_distance(&mut list);
     list
 }

@@ -14,7 +14,7 @@ use rand_distr::{Distribution, StandardNormal, Uniform};
 use rayon::prelude::*;
 use slam_core::nalgebra::allocator::Allocator;
 use slam_core::nalgebra::{DMatrix, DVector, DefaultAllocator, Dim, OMatrix, OVector};
-use slam_core::{Error, MotionModel, Result, RobotPose};
+use slam_core::{Error, MotionModel, Result, RobotPose, assign_vector};
 
 pub(crate) use ancestry::Ancestry;
 
@@ -350,30 +350,40 @@ pub(crate) fn sample_motion<P: RobotPose>(
     let sampled: Vec<Result<P>> = poses
         .par_iter()
         .enumerate()
-        .map(|(index, pose)| {
-            let mut rng = stream(seed, draw, index as u64);
-            let sampled = draw_control(&control, &root, &mut rng);
-            motion.apply_control(pose, &sampled)
-        })
+        .map_init(
+            || DVector::zeros(0),
+            |sampled, (index, pose)| {
+                let mut rng = stream(seed, draw, index as u64);
+                draw_control(&control, &root, &mut rng, sampled);
+                motion.apply_control(pose, sampled)
+            },
+        )
         .collect();
     sampled.into_iter().collect()
 }
 
-/// `control + root z` for `z` drawn from `N(0, I)` by `rng`, one allocation (the result):
-/// the products summed column by column, as nalgebra's matrix-vector product does, so the
-/// numbers are those of `&control + &root * z`.
-fn draw_control(control: &DVector<f64>, root: &DMatrix<f64>, rng: &mut ChaCha8Rng) -> DVector<f64> {
+/// `control + root z` for `z` drawn from `N(0, I)` by `rng`, written into `sampled` (its
+/// storage reused: a worker keeps one for all its particles): the products summed column
+/// by column, as nalgebra's matrix-vector product does, so the numbers are those of
+/// `&control + &root * z`.
+fn draw_control(
+    control: &DVector<f64>,
+    root: &DMatrix<f64>,
+    rng: &mut ChaCha8Rng,
+    sampled: &mut DVector<f64>,
+) {
     const STACK: usize = 8;
     let n = control.len();
     if n > STACK || root.shape() != (n, n) {
         let z = DVector::from_fn(n, |_, _| StandardNormal.sample(&mut *rng));
-        return control + root * z;
+        *sampled = control + root * z;
+        return;
     }
     let mut z = [0.0f64; STACK];
     for value in z.iter_mut().take(n) {
         *value = StandardNormal.sample(&mut *rng);
     }
-    let mut sampled = control.clone();
+    assign_vector(sampled, control.as_slice());
     for (i, value) in sampled.iter_mut().enumerate() {
         let mut product = root[(i, 0)] * z[0];
         for (j, z_j) in z.iter().enumerate().take(n).skip(1) {
@@ -381,7 +391,6 @@ fn draw_control(control: &DVector<f64>, root: &DMatrix<f64>, rng: &mut ChaCha8Rn
         }
         *value += product;
     }
-    sampled
 }
 
 /// Systematic resampling of `log_weights` when the effective sample size is below

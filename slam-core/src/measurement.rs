@@ -443,6 +443,54 @@ pub struct LinearizedMeasurement {
     pub d_eta_d_xf: DMatrix<f64>,
 }
 
+impl LinearizedMeasurement {
+    /// Writes what a model's own linearization (on stack matrices) has besides its own
+    /// columns, for a feature without shared blocks, reusing this buffer's storage: `eta`,
+    /// `C_eta` (from [`chain_covariance`]), the sensor columns `J_eta_o J_os`, the robot
+    /// columns `J_eta_o J_os J_sr` (the chain's product with `frame`'s `J_sr`) and
+    /// `J_eta_f`. The caller writes `d_eta_d_own` (its `B~`).
+    ///
+    /// ```
+    /// use slam_core::{LinearizedMeasurement, Pose2, Pose3, SensorFrame};
+    /// use slam_core::nalgebra::{Matrix1x6, Matrix1x3, Matrix1};
+    /// let frame = SensorFrame::new(&Pose2::new(1.0, 0.0, 0.3), &Pose3::identity()).unwrap();
+    /// let mut out = LinearizedMeasurement::default();
+    /// let d_eta_d_sensor = Matrix1x6::new(1.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    /// out.write_unshared(&[0.1], &Matrix1::new(0.01), &d_eta_d_sensor, &frame, &Matrix1x3::new(-1.0, 0.0, 0.0));
+    /// assert_eq!(out.d_eta_d_robot.ncols(), 3);
+    /// assert!(out.d_eta_d_shared.is_empty());
+    /// ```
+    pub fn write_unshared<RC, CC, SC, RS, CS, SS, RX, CX, SX>(
+        &mut self,
+        eta: &[f64],
+        cov_eta: &Matrix<f64, RC, CC, SC>,
+        d_eta_d_sensor: &Matrix<f64, RS, CS, SS>,
+        frame: &SensorFrame,
+        d_eta_d_xf: &Matrix<f64, RX, CX, SX>,
+    ) where
+        RC: Dim,
+        CC: Dim,
+        SC: RawStorage<f64, RC, CC>,
+        RS: Dim,
+        CS: Dim,
+        SS: RawStorage<f64, RS, CS>,
+        RX: Dim,
+        CX: Dim,
+        SX: RawStorage<f64, RX, CX>,
+    {
+        assign_vector(&mut self.eta, eta);
+        assign_matrix(&mut self.cov_eta, cov_eta);
+        chain_product_into(
+            d_eta_d_sensor,
+            &frame.pose.d_sensor_d_robot,
+            &mut self.d_eta_d_robot,
+        );
+        assign_matrix(&mut self.d_eta_d_sensor, d_eta_d_sensor);
+        self.d_eta_d_shared.clear();
+        assign_matrix(&mut self.d_eta_d_xf, d_eta_d_xf);
+    }
+}
+
 impl Default for LinearizedMeasurement {
     fn default() -> Self {
         LinearizedMeasurement {
@@ -550,10 +598,22 @@ pub fn linearize_at_into(
     frame: &SensorFrame,
     out: &mut LinearizedMeasurement,
 ) -> Result<()> {
-    match measurement.linearize_at_dyn(feature, frame, out) {
+    let written = measurement.linearize_at_dyn(feature, frame, out);
+    own_or_chain(written, out, || {
+        chain_linearize_at(measurement, feature, frame)
+    })
+}
+
+/// The model's own linearization when it wrote one into `out`, else `chain`'s in its place.
+fn own_or_chain<T>(
+    written: Option<Result<()>>,
+    out: &mut T,
+    chain: impl FnOnce() -> Result<T>,
+) -> Result<()> {
+    match written {
         Some(done) => done,
         None => {
-            *out = chain_linearize_at(measurement, feature, frame)?;
+            *out = chain()?;
             Ok(())
         }
     }
@@ -709,13 +769,10 @@ pub fn linearize_own_at_into(
     to_sensor: &MapToSensor,
     out: &mut OwnLinearization,
 ) -> Result<()> {
-    match measurement.linearize_own_dyn(feature, to_sensor, out) {
-        Some(done) => done,
-        None => {
-            *out = chain_linearize_own_at(measurement, feature, to_sensor)?;
-            Ok(())
-        }
-    }
+    let written = measurement.linearize_own_dyn(feature, to_sensor, out);
+    own_or_chain(written, out, || {
+        chain_linearize_own_at(measurement, feature, to_sensor)
+    })
 }
 
 /// The generic chain of [`linearize_own_at`] (see [`chain_linearize_at`]).

@@ -171,20 +171,14 @@ impl MeasurementModel for PoleObservation {
             let d_xo_d_xm = scalar_and_point2(&d_centre_d_centre);
             let d_eta_d_sensor = chain_product(&parts.d_eta_d_xo, &d_xo_d_sensor);
             let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, &d_xo_d_xm);
-            assign_vector(&mut out.eta, parts.eta.as_slice());
-            assign_matrix(
-                &mut out.cov_eta,
+            out.write_unshared(
+                parts.eta.as_slice(),
                 &chain_covariance(&parts.d_eta_d_v, &parts.cov_v),
-            );
-            chain_product_into(
                 &d_eta_d_sensor,
-                &frame.pose.d_sensor_d_robot,
-                &mut out.d_eta_d_robot,
+                frame,
+                &d_eta_d_xf,
             );
-            assign_matrix(&mut out.d_eta_d_sensor, &d_eta_d_sensor);
             own_columns_into(pole, &d_eta_d_xf, &mut out.d_eta_d_own);
-            out.d_eta_d_shared.clear();
-            assign_matrix(&mut out.d_eta_d_xf, &d_eta_d_xf);
             Ok(())
         };
         Some(lin())

@@ -143,21 +143,15 @@ impl MeasurementModel for RangeBearing {
             let parts = self.innovation_parts(&to_sensor.transform_point3(&position))?;
             let d_eta_d_sensor = chain_product(&parts.d_eta_d_xo, &d_xo_d_sensor);
             let d_eta_d_xf = chain_product(&parts.d_eta_d_xo, &d_xo_d_xm);
-            let (dual, dim) = point.dual_columns();
-            assign_vector(&mut out.eta, parts.eta.as_slice());
-            assign_matrix(
-                &mut out.cov_eta,
+            out.write_unshared(
+                parts.eta.as_slice(),
                 &chain_covariance(&parts.d_eta_d_v, &parts.cov_v),
-            );
-            chain_product_into(
                 &d_eta_d_sensor,
-                &frame.pose.d_sensor_d_robot,
-                &mut out.d_eta_d_robot,
+                frame,
+                &d_eta_d_xf,
             );
-            assign_matrix(&mut out.d_eta_d_sensor, &d_eta_d_sensor);
+            let (dual, dim) = point.dual_columns();
             chain_product_into(&d_eta_d_xf, &dual.columns(0, dim), &mut out.d_eta_d_own);
-            out.d_eta_d_shared.clear();
-            assign_matrix(&mut out.d_eta_d_xf, &d_eta_d_xf);
             Ok(())
         };
         Some(lin())

@@ -547,7 +547,7 @@ fn largest_range(path: &Path) -> Result<f64> {
 /// The largest finite reading of a laser line (folded from 0), or `None` for other lines and
 /// for readings that do not parse as numbers.
 fn line_largest_range(content: &str) -> Option<f64> {
-    let mut fields = content.split_whitespace();
+    let mut fields = content.split_ascii_whitespace();
     let first_reading = match fields.next()? {
         "FLASER" | "RLASER" => 0,
         "ROBOTLASER1" => 7,
@@ -593,7 +593,7 @@ fn parse_line(fields: &Fields, options: &CarmenOptions) -> Result<Option<Stamped
 /// The logger timestamp of a record line (the last field), or `None` for other lines and
 /// for stamps that do not parse (the reading pass reports those).
 fn line_stamp(content: &str) -> Option<(bool, f64)> {
-    let mut fields = content.split_whitespace();
+    let mut fields = content.split_ascii_whitespace();
     let scan = match fields.next()? {
         "FLASER" | "RLASER" | "ROBOTLASER1" => true,
         "ODOM" => false,

@@ -74,9 +74,10 @@ pub(crate) struct Fields<'a> {
 const INLINE_FIELDS: usize = 12;
 
 impl<'a> Fields<'a> {
-    /// Fields separated by any whitespace (spaces and tabs).
+    /// Fields separated by ASCII whitespace (spaces and tabs: the logs are ASCII text, and a
+    /// byte-wise split does not decode characters).
     pub(crate) fn whitespace(file: &'a Path, line: usize, text: &'a str) -> Self {
-        Self::from_iter(file, line, text, text.split_whitespace())
+        Self::from_iter(file, line, text, text.split_ascii_whitespace())
     }
 
     /// Comma-separated fields, each trimmed.
@@ -391,7 +392,11 @@ impl Lines {
                 if let Some(rest) = bytes.strip_suffix(b"\n") {
                     bytes = rest.strip_suffix(b"\r").unwrap_or(rest);
                 }
-                Some(Ok((self.number, String::from_utf8_lossy(bytes))))
+                let text = match std::str::from_utf8(bytes) {
+                    Ok(text) => Cow::Borrowed(text),
+                    Err(_) => String::from_utf8_lossy(bytes),
+                };
+                Some(Ok((self.number, text)))
             }
             Err(e) => {
                 self.done = true;

@@ -248,8 +248,8 @@ fn print_solution(
     elapsed: std::time::Duration,
 ) {
     println!(
-        "{name}: {readings} readings, prior {:?}: {} in {:.2?} ({} inner optimizations), \
-         largest violation {:.1e}",
+        "{name}: {readings} readings, prior {:?}: {} in {:.2?} ({} topologies, {} inner \
+         optimizations of their parts), largest violation {:.1e}",
         prior.name,
         if solution.feasible {
             "feasible"
@@ -258,6 +258,7 @@ fn print_solution(
         },
         elapsed,
         solution.outer_iterations,
+        solution.inner_optimizations,
         solution.max_violation
     );
     println!(

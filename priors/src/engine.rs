@@ -18,6 +18,14 @@
 //!   [`Params::min_region_points`] leave INMODEL (outliers). A last pass moves each region
 //!   boundary by one reading while that lowers the fit cost (a small local search the source
 //!   lists as future work).
+//! - Independent parts: a link that no priorlet window crosses (a different-surface link when
+//!   the prior's `different_surface` priorlet states nothing, as in every shipped prior)
+//!   splits the problem into parts that share no term, so each part (a run of readings between
+//!   such links) has its own inner optimization, and a part whose readings and links an
+//!   earlier topology already had keeps that earlier result: relaxing one link solves only
+//!   the part that holds it (`PartSolver`).
+
+use std::collections::HashMap;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -243,8 +251,11 @@ pub struct Solution {
     pub feasible: bool,
     /// Largest constraint violation at the solution.
     pub max_violation: f64,
-    /// Outer iterations (inner optimizations) used.
+    /// Outer iterations used: the topologies tried (relaxations and boundary moves).
     pub outer_iterations: usize,
+    /// Inner optimizations run: the parts of those topologies solved (a part whose
+    /// readings and links an earlier topology had is not solved again).
+    pub inner_optimizations: usize,
     /// Fit cost: `sum (rho - measured)^2 / (2 sigma^2)` plus the energies.
     pub fit_cost: f64,
     /// The negative log-posterior of Problem 4 up to a constant: fit cost minus
@@ -1317,6 +1328,124 @@ fn build_problem<'a>(
     }
 }
 
+/// The inner optimization of a topology, solved part by part: the runs of readings between
+/// links that no priorlet window crosses share no term of the objective, so each run is a
+/// problem of its own, and a run whose readings and links were solved before (by an earlier
+/// topology of the outer loop) is not solved again.
+///
+/// Each part's normals are unwrapped from its own first reading; the parts' results are
+/// shifted by whole turns to continue the unwrapping of the whole scan (the priorlets see
+/// only differences and trigonometric functions of the normals within a part's windows).
+struct PartSolver<'a> {
+    prior: &'a Prior,
+    input: &'a ScanInput,
+    params: &'a Params,
+    /// Results by part: its readings and its links.
+    solved: HashMap<(Vec<usize>, Vec<Topology>), SolvedPart>,
+    /// Inner optimizations run so far (parts solved).
+    inner_optimizations: usize,
+}
+
+/// A part's inner optimization, with its first and last initial normal (for the unwrapping
+/// across parts).
+struct SolvedPart {
+    inner: Inner,
+    first_normal: f64,
+    last_normal: f64,
+}
+
+impl<'a> PartSolver<'a> {
+    fn new(prior: &'a Prior, input: &'a ScanInput, params: &'a Params) -> Self {
+        PartSolver {
+            prior,
+            input,
+            params,
+            solved: HashMap::new(),
+            inner_optimizations: 0,
+        }
+    }
+
+    /// The inner optimization of INMODEL `members` with `links`, as one [`Inner`] over all
+    /// of them.
+    fn solve(&mut self, members: &[usize], links: &[Topology]) -> Result<Inner> {
+        let m = members.len();
+        let mut whole = Inner {
+            x: Vec::with_capacity(2 * m),
+            feasible: true,
+            max_violation: 0.0,
+            link_penalties: vec![0.0; m.saturating_sub(1)],
+        };
+        let mut previous_last_normal: Option<f64> = None;
+        let mut start = 0;
+        for end in part_ends(self.prior, links, m) {
+            let key = (members[start..end].to_vec(), links[start..end - 1].to_vec());
+            if !self.solved.contains_key(&key) {
+                let problem = build_problem(self.prior, self.input, &key.0, &key.1, self.params);
+                let inner = inner_optimization(&problem, self.params)?;
+                self.inner_optimizations += 1;
+                let solved = SolvedPart {
+                    inner,
+                    first_normal: problem.alpha0.first().copied().unwrap_or(0.0),
+                    last_normal: problem.alpha0.last().copied().unwrap_or(0.0),
+                };
+                self.solved.insert(key.clone(), solved);
+            }
+            let Some(SolvedPart {
+                inner,
+                first_normal,
+                last_normal,
+            }) = self.solved.get(&key)
+            else {
+                return Err(PriorError::Numerical("a solved part went missing".into()));
+            };
+            // build_problem's unwrapping, continued from the previous part.
+            let shift = previous_last_normal.map_or(0.0, |previous| {
+                -((first_normal - previous) / std::f64::consts::TAU).round() * std::f64::consts::TAU
+            });
+            previous_last_normal = Some(last_normal + shift);
+            for pair in inner.x.chunks_exact(2) {
+                whole.x.push(pair[0]);
+                whole.x.push(pair[1] + shift);
+            }
+            whole.feasible &= inner.feasible;
+            whole.max_violation = whole.max_violation.max(inner.max_violation);
+            whole.link_penalties[start..end - 1].copy_from_slice(&inner.link_penalties);
+            start = end;
+        }
+        Ok(whole)
+    }
+}
+
+/// The ends (exclusive) of the runs of the `m` readings between links that no priorlet
+/// window crosses: link `k` (between readings `k` and `k + 1`) splits when it is not
+/// same-region (the initial normals look across same-region links) and every window of
+/// `order` readings that holds both of its readings has a priorlet that states nothing.
+fn part_ends(prior: &Prior, links: &[Topology], m: usize) -> Vec<usize> {
+    let order = prior.order;
+    let splits = |k: usize| {
+        if links[k] == Topology::SameRegion {
+            return false;
+        }
+        if m < order {
+            return true;
+        }
+        let first_window = (k + 2).saturating_sub(order);
+        (first_window..=k.min(m - order)).all(|s| {
+            prior
+                .priorlet(window_topology(&links[s..s + order - 1]))
+                .is_empty()
+        })
+    };
+    let mut ends: Vec<usize> = (0..m.saturating_sub(1))
+        .filter(|&k| splits(k))
+        .map(|k| k + 1)
+        .collect();
+    if m > 0 {
+        ends.push(m);
+    }
+    ends
+}
+
 /// Removes the readings of regions smaller than `min_points`; a link bridging removed
 /// readings becomes same-region (the strictest), or different-surface when its two readings
 /// are too far apart to be on one surface ([`GapTest`]). Returns whether anything was
@@ -1438,10 +1567,10 @@ pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Soluti
     }
     let mut outer = 0;
     let mut result;
+    let mut parts = PartSolver::new(prior, input, params);
     loop {
         outer += 1;
-        let problem = build_problem(prior, input, &members, &links, params);
-        result = inner_optimization(&problem, params)?;
+        result = parts.solve(&members, &links)?;
         if result.feasible || outer >= max_outer || members.len() < prior.order {
             break;
         }
@@ -1499,7 +1628,7 @@ pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Soluti
                     }
                     let trial_problem = build_problem(prior, input, &members, &trial, params);
                     outer += 1;
-                    let trial_result = inner_optimization(&trial_problem, params)?;
+                    let trial_result = parts.solve(&members, &trial)?;
                     let cost = trial_problem.fit_cost(&trial_result.x);
                     if trial_result.feasible && cost < best_cost - 1e-9 {
                         best_cost = cost;
@@ -1547,6 +1676,7 @@ pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Soluti
         feasible: result.feasible,
         max_violation: result.max_violation,
         outer_iterations: outer,
+        inner_optimizations: parts.inner_optimizations,
         fit_cost,
         objective: fit_cost - gamma * members.len() as f64,
     })
@@ -1620,6 +1750,132 @@ mod tests {
         let mut sorted = values[..k].to_vec();
         sorted.sort_by(f64::total_cmp);
         sorted
+    }
+
+    /// Two rooms side by side in one scan: a rectangle seen from inside, whose far wall has a
+    /// gap through which a second, farther wall is seen (different surfaces).
+    fn two_surface_input() -> ScanInput {
+        let beams = 90;
+        let phi: Vec<f64> = (0..beams)
+            .map(|i| -1.2 + 2.4 * i as f64 / (beams - 1) as f64)
+            .collect();
+        let rho = phi
+            .iter()
+            .enumerate()
+            .map(|(i, &angle)| {
+                // A wall 3 m ahead, then (beams 40-59) a wall 6 m ahead, then 3 m again, with
+                // a few millimetres of deterministic noise.
+                let depth = if (40..60).contains(&i) { 6.0 } else { 3.0 };
+                depth / angle.cos() + 0.004 * ((i * 7919 % 13) as f64 / 13.0 - 0.5)
+            })
+            .collect();
+        ScanInput::new(phi, rho, 0.01).expect("valid scan")
+    }
+
+    #[test]
+    fn links_that_no_window_crosses_split_the_problem() {
+        use Topology::{DifferentRegion as R, DifferentSurface as S, SameRegion as Q};
+        let library = crate::Library::shipped().expect("shipped priors");
+        let rectangular = library.compile("Rectangular prior").expect("prior");
+        let polygonal = library.compile("Polygonal prior").expect("prior");
+        let circular = library.compile("Circular prior").expect("prior");
+        let links = [Q, Q, S, Q, R, Q, Q];
+        // The rectangular prior ties the normals across a region change: only the surface
+        // change splits.
+        assert_eq!(part_ends(&rectangular, &links, 8), vec![3, 8]);
+        // The polygonal prior states nothing across a region change either.
+        assert_eq!(part_ends(&polygonal, &links, 8), vec![3, 5, 8]);
+        // Order 3: a window of three readings holds two links; a different-surface link
+        // still states nothing, and the windows around it only hold it.
+        assert_eq!(circular.order, 3);
+        assert_eq!(part_ends(&circular, &links, 8), vec![3, 5, 8]);
+        // A prior with a different-surface priorlet (and none across a region change) ties
+        // the readings across the surface change, not across the region change.
+        let mut custom = crate::Library::shipped().expect("shipped priors");
+        let name = custom
+            .add(
+                "name: Tied\norder: 2\npriorlet same_region:\n  alpha_1 == alpha_2\n\
+                 priorlet different_surface:\n  model_likelihood (alpha_2 - alpha_1)^2\n",
+                "test",
+            )
+            .expect("valid prior");
+        let tied = custom.compile(&name).expect("prior");
+        assert_eq!(part_ends(&tied, &links, 8), vec![5, 8]);
+        assert!(part_ends(&rectangular, &[], 0).is_empty());
+        assert_eq!(part_ends(&rectangular, &[], 1), vec![1]);
+    }
+
+    /// Part by part, the inner optimization reaches the optimum of the whole problem (within
+    /// the feasibility tolerance), with the normals in the whole problem's unwrapping, and a
+    /// part solved before is not solved again.
+    #[test]
+    fn solving_part_by_part_matches_the_whole_problem() {
+        let library = crate::Library::shipped().expect("shipped priors");
+        let prior = library.compile("Rectangular prior").expect("prior");
+        let input = two_surface_input();
+        let params = Params::default();
+        let members: Vec<usize> = (0..input.len()).collect();
+        let mut links = vec![Topology::SameRegion; input.len() - 1];
+        links[39] = Topology::DifferentSurface;
+        links[59] = Topology::DifferentSurface;
+        let whole_problem = build_problem(&prior, &input, &members, &links, &params);
+        let whole = inner_optimization(&whole_problem, &params).expect("inner optimization");
+        let mut parts = PartSolver::new(&prior, &input, &params);
+        let by_parts = parts.solve(&members, &links).expect("parts");
+        assert_eq!(parts.inner_optimizations, 3);
+        assert!(whole.feasible && by_parts.feasible);
+        assert_eq!(by_parts.x.len(), whole.x.len());
+        for (j, (a, b)) in by_parts.x.iter().zip(&whole.x).enumerate() {
+            assert!((a - b).abs() < 1e-5, "x[{j}]: {a} by parts, {b} whole");
+        }
+        // The same topology again: nothing solved.
+        parts.solve(&members, &links).expect("parts");
+        assert_eq!(parts.inner_optimizations, 3);
+        // A link relaxed in the middle part: only that part is solved again.
+        links[50] = Topology::DifferentRegion;
+        parts.solve(&members, &links).expect("parts");
+        assert_eq!(parts.inner_optimizations, 4);
+    }
+
+    /// The normals of the parts continue the whole scan's unwrapping, even where the scan's
+    /// normals pass through +-pi.
+    #[test]
+    fn the_parts_normals_are_unwrapped_as_the_whole_scans() {
+        let library = crate::Library::shipped().expect("shipped priors");
+        let prior = library.compile("Polygonal prior").expect("prior");
+        // Two walls ahead, their normals (towards the sensor) on either side of +-pi: the
+        // first at pi - 0.05, 2 m away; after a gap the second at -pi + 0.05, 4 m away. The
+        // second part's first normal is unwrapped to pi + 0.05 in the whole scan.
+        let beams = 60;
+        let phi: Vec<f64> = (0..beams)
+            .map(|i| -0.6 + 1.2 * i as f64 / (beams - 1) as f64)
+            .collect();
+        let rho = phi
+            .iter()
+            .enumerate()
+            .map(|(i, &angle)| {
+                let (normal, distance) = if i < 30 {
+                    (std::f64::consts::PI - 0.05, 2.0)
+                } else {
+                    (-std::f64::consts::PI + 0.05, 4.0)
+                };
+                -distance / (angle - normal).cos()
+            })
+            .collect();
+        let input = ScanInput::new(phi, rho, 0.01).expect("valid scan");
+        let params = Params::default();
+        let members: Vec<usize> = (0..beams).collect();
+        let mut links = vec![Topology::SameRegion; beams - 1];
+        links[29] = Topology::DifferentSurface;
+        let whole_problem = build_problem(&prior, &input, &members, &links, &params);
+        let whole = inner_optimization(&whole_problem, &params).expect("inner optimization");
+        let by_parts = PartSolver::new(&prior, &input, &params)
+            .solve(&members, &links)
+            .expect("parts");
+        for j in 0..beams {
+            let (a, b) = (by_parts.x[2 * j + 1], whole.x[2 * j + 1]);
+            assert!((a - b).abs() < 1e-5, "normal {j}: {a} by parts, {b} whole");
+        }
     }
 
     /// The windows are evaluated in parallel and their terms added in window order: the

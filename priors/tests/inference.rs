@@ -88,7 +88,7 @@ fn square_room_rectangular_prior_twenty_scans() {
             sim.outlier_beams.len(),
             solution.outliers().len(),
             corners.len(),
-            solution.outer_iterations
+            solution.inner_optimizations
         );
     }
     let mean = errors.iter().sum::<f64>() / errors.len() as f64;

@@ -1752,24 +1752,39 @@ mod tests {
         sorted
     }
 
-    /// Two rooms side by side in one scan: a rectangle seen from inside, whose far wall has a
-    /// gap through which a second, farther wall is seen (different surfaces).
-    fn two_surface_input() -> ScanInput {
-        let beams = 90;
+    /// A scan of `beams` bearings spread evenly over `bearings`, each reading the range to
+    /// the wall that `wall_of(i)` gives as (its normal towards the sensor, its distance),
+    /// plus a few millimetres of deterministic noise when `noisy`.
+    fn scan_of_walls(
+        beams: usize,
+        bearings: (f64, f64),
+        wall_of: impl Fn(usize) -> (f64, f64),
+        noisy: bool,
+    ) -> ScanInput {
         let phi: Vec<f64> = (0..beams)
-            .map(|i| -1.2 + 2.4 * i as f64 / (beams - 1) as f64)
+            .map(|i| bearings.0 + (bearings.1 - bearings.0) * i as f64 / (beams - 1) as f64)
             .collect();
         let rho = phi
             .iter()
             .enumerate()
             .map(|(i, &angle)| {
-                // A wall 3 m ahead, then (beams 40-59) a wall 6 m ahead, then 3 m again, with
-                // a few millimetres of deterministic noise.
-                let depth = if (40..60).contains(&i) { 6.0 } else { 3.0 };
-                depth / angle.cos() + 0.004 * ((i * 7919 % 13) as f64 / 13.0 - 0.5)
+                let (normal, distance) = wall_of(i);
+                let noise = if noisy {
+                    0.004 * ((i * 7919 % 13) as f64 / 13.0 - 0.5)
+                } else {
+                    0.0
+                };
+                -distance / (angle - normal).cos() + noise
             })
             .collect();
         ScanInput::new(phi, rho, 0.01).expect("valid scan")
+    }
+
+    /// A wall 3 m ahead with a gap (beams 40-59) through which a wall 6 m ahead is seen: three
+    /// surfaces.
+    fn two_surface_input() -> ScanInput {
+        let depth = |i: usize| if (40..60).contains(&i) { 6.0 } else { 3.0 };
+        scan_of_walls(90, (-1.2, 1.2), |i| (std::f64::consts::PI, depth(i)), true)
     }
 
     #[test]
@@ -1847,22 +1862,14 @@ mod tests {
         // first at pi - 0.05, 2 m away; after a gap the second at -pi + 0.05, 4 m away. The
         // second part's first normal is unwrapped to pi + 0.05 in the whole scan.
         let beams = 60;
-        let phi: Vec<f64> = (0..beams)
-            .map(|i| -0.6 + 1.2 * i as f64 / (beams - 1) as f64)
-            .collect();
-        let rho = phi
-            .iter()
-            .enumerate()
-            .map(|(i, &angle)| {
-                let (normal, distance) = if i < 30 {
-                    (std::f64::consts::PI - 0.05, 2.0)
-                } else {
-                    (-std::f64::consts::PI + 0.05, 4.0)
-                };
-                -distance / (angle - normal).cos()
-            })
-            .collect();
-        let input = ScanInput::new(phi, rho, 0.01).expect("valid scan");
+        let wall_of = |i: usize| {
+            if i < 30 {
+                (std::f64::consts::PI - 0.05, 2.0)
+            } else {
+                (-std::f64::consts::PI + 0.05, 4.0)
+            }
+        };
+        let input = scan_of_walls(beams, (-0.6, 0.6), wall_of, false);
         let params = Params::default();
         let members: Vec<usize> = (0..beams).collect();
         let mut links = vec![Topology::SameRegion; beams - 1];

@@ -26,6 +26,7 @@
 //!   the part that holds it (`PartSolver`).
 
 use std::collections::HashMap;
+use std::collections::hash_map::Entry;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -1379,24 +1380,24 @@ impl<'a> PartSolver<'a> {
         let mut start = 0;
         for end in part_ends(self.prior, links, m) {
             let key = (members[start..end].to_vec(), links[start..end - 1].to_vec());
-            if !self.solved.contains_key(&key) {
-                let problem = build_problem(self.prior, self.input, &key.0, &key.1, self.params);
-                let inner = inner_optimization(&problem, self.params)?;
-                self.inner_optimizations += 1;
-                let solved = SolvedPart {
-                    inner,
-                    first_normal: problem.alpha0.first().copied().unwrap_or(0.0),
-                    last_normal: problem.alpha0.last().copied().unwrap_or(0.0),
-                };
-                self.solved.insert(key.clone(), solved);
-            }
-            let Some(SolvedPart {
+            let SolvedPart {
                 inner,
                 first_normal,
                 last_normal,
-            }) = self.solved.get(&key)
-            else {
-                return Err(PriorError::Numerical("a solved part went missing".into()));
+            } = &*match self.solved.entry(key) {
+                Entry::Occupied(solved) => solved.into_mut(),
+                Entry::Vacant(part) => {
+                    let (readings, part_links) = part.key();
+                    let problem =
+                        build_problem(self.prior, self.input, readings, part_links, self.params);
+                    let inner = inner_optimization(&problem, self.params)?;
+                    self.inner_optimizations += 1;
+                    part.insert(SolvedPart {
+                        inner,
+                        first_normal: problem.alpha0.first().copied().unwrap_or(0.0),
+                        last_normal: problem.alpha0.last().copied().unwrap_or(0.0),
+                    })
+                }
             };
             // build_problem's unwrapping, continued from the previous part.
             let shift = previous_last_normal.map_or(0.0, |previous| {

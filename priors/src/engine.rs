@@ -1537,6 +1537,10 @@ impl GapTest {
 
 /// Runs the inference (Algorithm 1 around Algorithm 2) of `prior` on one scan.
 pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Solution> {
+    rayon::scope(|_| infer_on_worker(prior, input, params))
+}
+
+fn infer_on_worker(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Solution> {
     params.validate()?;
     input.validate()?;
     let n = input.len();

@@ -5,13 +5,17 @@
 //! - Inner loop (Algorithm 2): penalty homotopy for the prior's constraints
 //!   (`lambda f^2`, `lambda max(0, g)^2`, the smallest branch of a disjunction), log-barrier
 //!   for the bounds, Newton steps with backtracking. Gradients and Hessians are exact
-//!   (second-order dual numbers through the priorlet's tape). The Hessian is convexified
-//!   window by window: each priorlet window's Hessian (energies plus penalties) has its
-//!   negative eigenvalues raised to a small positive value (eigen-decomposition by cyclic
-//!   Jacobi, `symmetric_eigen`, started from the window's eigenvectors of the previous Newton
-//!   step, `convexify_from`), so the banded sum is positive definite and is factored by a banded
-//!   Cholesky in `O(n)`. The windows' terms are computed in parallel (rayon) and added in
-//!   window order, so the results do not depend on the number of threads.
+//!   (second-order dual numbers through the priorlet's tape). A Newton step uses the exact
+//!   Hessian when its banded sum (data, barrier and windows) is positive definite, which a
+//!   banded Cholesky factor in `O(n)` finds out, as it is at nearly every step (the data
+//!   terms' curvature outweighs the penalties' negative curvature). Otherwise the Hessian is
+//!   convexified window by window (Algorithm 2, line 12): each priorlet window's Hessian
+//!   (energies plus penalties) has its negative eigenvalues raised to a small positive value
+//!   (eigen-decomposition by cyclic Jacobi, `symmetric_eigen`, started from the window's
+//!   eigenvectors of the previous convexified step, `convexify_from`), so the banded sum is
+//!   positive definite. The windows' terms are computed in parallel (rayon, the whole inference
+//!   on a worker of its pool) and added in window order, so the results do not depend on the
+//!   number of threads.
 //! - Outer loop (Algorithm 1): every reading in INMODEL and the strictest topology first;
 //!   while infeasible, the link with the largest penalty is relaxed (same region -> different
 //!   region -> different surface) and the readings of regions smaller than
@@ -415,6 +419,15 @@ pub(crate) fn windows_of(order: usize, links: &[Topology], m: usize) -> Vec<(usi
         .collect()
 }
 
+/// Which Hessian a Newton model uses for the windows' terms.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum HessianModel {
+    /// Each window's exact Hessian (symmetrized).
+    Exact,
+    /// Each window's Hessian with its negative eigenvalues raised ([`convexify_from`]).
+    Convexified,
+}
+
 struct Evaluation {
     value: f64,
     gradient: Vec<f64>,
@@ -579,10 +592,17 @@ impl Problem<'_> {
             .collect()
     }
 
-    /// Value, gradient and convexified banded Hessian at `x`. `bases` holds each window's
-    /// eigenvectors of the previous evaluation ([`convexify_from`]; empty: none yet) and
-    /// receives this evaluation's.
-    fn evaluate(&self, x: &[f64], lambda: f64, mu: f64, bases: &mut Vec<f64>) -> Evaluation {
+    /// Value, gradient and banded Hessian at `x`, the windows' Hessians as `model` says.
+    /// `bases` holds each window's eigenvectors of the previous convexified evaluation
+    /// ([`convexify_from`]; empty: none yet) and receives this one's.
+    fn evaluate(
+        &self,
+        x: &[f64],
+        lambda: f64,
+        mu: f64,
+        bases: &mut Vec<f64>,
+        model: HessianModel,
+    ) -> Evaluation {
         let n = self.dim();
         let order = self.prior.order;
         let mut band = Band::new(n, 2 * order - 1);
@@ -605,9 +625,27 @@ impl Problem<'_> {
             *band.at(i, i) += mu * (1.0 / (a * a) + 1.0 / (b * b));
         }
         match order {
-            2 => self.add_windows::<4>(x, lambda, (&mut value, &mut gradient, &mut band), bases),
-            3 => self.add_windows::<6>(x, lambda, (&mut value, &mut gradient, &mut band), bases),
-            _ => self.add_windows::<8>(x, lambda, (&mut value, &mut gradient, &mut band), bases),
+            2 => self.add_windows::<4>(
+                x,
+                lambda,
+                (&mut value, &mut gradient, &mut band),
+                bases,
+                model,
+            ),
+            3 => self.add_windows::<6>(
+                x,
+                lambda,
+                (&mut value, &mut gradient, &mut band),
+                bases,
+                model,
+            ),
+            _ => self.add_windows::<8>(
+                x,
+                lambda,
+                (&mut value, &mut gradient, &mut band),
+                bases,
+                model,
+            ),
         }
         Evaluation {
             value,
@@ -616,14 +654,14 @@ impl Problem<'_> {
         }
     }
 
-    /// Adds every window's energies and penalties, with its Hessian convexified
-    /// ([`convexify`]), to `value`, `gradient` and `band`. The windows are evaluated in
+    /// Adds every window's energies and penalties, with its Hessian exact or convexified
+    /// ([`convexify`]) as `model` says, to `value`, `gradient` and `band`. The windows are evaluated in
     /// parallel (rayon) in chunks of [`WINDOW_CHUNK`], each into its own terms, which are then
     /// added in window order, as a serial loop adds them: the sums are the same bit for bit
     /// for any number of threads.
     ///
     /// Each window's eigen-decomposition starts from its eigenvectors of the previous
-    /// evaluation, `N x N` numbers per window in `bases` (identity matrices when `bases` does
+    /// convexified evaluation, `N x N` numbers per window in `bases` (identity matrices when `bases` does
     /// not have that length), which receives the new ones.
     fn add_windows<const N: usize>(
         &self,
@@ -631,6 +669,7 @@ impl Problem<'_> {
         lambda: f64,
         (value, gradient, band): (&mut f64, &mut [f64], &mut Band),
         bases: &mut Vec<f64>,
+        model: HessianModel,
     ) {
         let k = 2 * self.prior.order;
         if bases.len() != self.windows.len() * N * N {
@@ -660,20 +699,13 @@ impl Problem<'_> {
                         self.plan
                             .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
                     let total = window_terms(priorlet, buffer, lambda);
-                    let stored = &mut chunk_bases[i * N * N..(i + 1) * N * N];
-                    let mut basis = [[0.0; N]; N];
-                    for (r, row) in basis.iter_mut().enumerate() {
-                        row.copy_from_slice(&stored[r * N..(r + 1) * N]);
-                    }
-                    let hessian = convexify_from::<N>(
-                        &total.h,
-                        k,
-                        |largest| 1e-9 * largest.max(1.0),
-                        &mut basis,
-                    );
-                    for (r, row) in basis.iter().enumerate() {
-                        stored[r * N..(r + 1) * N].copy_from_slice(row);
-                    }
+                    let hessian = match model {
+                        HessianModel::Exact => symmetrized(&total.h, k),
+                        HessianModel::Convexified => {
+                            let stored = &mut chunk_bases[i * N * N..(i + 1) * N * N];
+                            convexify_stored(&total.h, k, stored)
+                        }
+                    };
                     out.push(WindowTerms {
                         start,
                         value: total.v,
@@ -694,6 +726,35 @@ impl Problem<'_> {
             }
         }
     }
+}
+
+/// The leading `k x k` block of `(h + h^T) / 2`.
+fn symmetrized<const N: usize>(h: &[[f64; N]; N], k: usize) -> [[f64; N]; N] {
+    let mut m = [[0.0; N]; N];
+    for i in 0..k {
+        for j in 0..k {
+            m[i][j] = 0.5 * (h[i][j] + h[j][i]);
+        }
+    }
+    m
+}
+
+/// [`convexify_from`] with the engine's floor, the basis read from and written back to
+/// `stored` (`N x N` numbers, row by row).
+fn convexify_stored<const N: usize>(
+    h: &[[f64; N]; N],
+    k: usize,
+    stored: &mut [f64],
+) -> [[f64; N]; N] {
+    let mut basis = [[0.0; N]; N];
+    for (r, row) in basis.iter_mut().enumerate() {
+        row.copy_from_slice(&stored[r * N..(r + 1) * N]);
+    }
+    let hessian = convexify_from::<N>(h, k, |largest| 1e-9 * largest.max(1.0), &mut basis);
+    for (r, row) in basis.iter().enumerate() {
+        stored[r * N..(r + 1) * N].copy_from_slice(row);
+    }
+    hessian
 }
 
 /// Windows per parallel task in [`Problem::add_windows`] (a window costs about a
@@ -1119,6 +1180,45 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
     }
 }
 
+/// The Newton model at `x` and its step: with the exact Hessian when the banded sum is
+/// positive definite (its Cholesky factor exists), as it is at nearly every step; otherwise
+/// with each window's Hessian convexified ([`HessianModel::Convexified`]) and, should even
+/// that fail to factor, a growing multiple of the identity added.
+fn newton_direction(
+    problem: &Problem,
+    x: &[f64],
+    (lambda, mu): (f64, f64),
+    bases: &mut Vec<f64>,
+) -> Result<(Evaluation, Vec<f64>)> {
+    let finite = |eval: &Evaluation| {
+        if eval.value.is_finite() && eval.gradient.iter().all(|g| g.is_finite()) {
+            Ok(())
+        } else {
+            Err(PriorError::Numerical(
+                "objective or gradient not finite during the Newton steps".into(),
+            ))
+        }
+    };
+    let exact = problem.evaluate(x, lambda, mu, bases, HessianModel::Exact);
+    finite(&exact)?;
+    let rhs: Vec<f64> = exact.gradient.iter().map(|g| -g).collect();
+    if let Some(direction) = exact.band.solve(&rhs, 0.0) {
+        return Ok((exact, direction));
+    }
+    let eval = problem.evaluate(x, lambda, mu, bases, HessianModel::Convexified);
+    finite(&eval)?;
+    let mut shift = 0.0;
+    loop {
+        if let Some(direction) = eval.band.solve(&rhs, shift) {
+            return Ok((eval, direction));
+        }
+        shift = if shift == 0.0 { 1e-8 } else { shift * 100.0 };
+        if shift > 1e12 {
+            return Err(PriorError::Numerical("Hessian cannot be factored".into()));
+        }
+    }
+}
+
 fn newton(
     problem: &Problem,
     x: &mut Vec<f64>,
@@ -1128,23 +1228,7 @@ fn newton(
     bases: &mut Vec<f64>,
 ) -> Result<usize> {
     for step_count in 0..params.max_newton_steps {
-        let eval = problem.evaluate(x, lambda, mu, bases);
-        if !eval.value.is_finite() || eval.gradient.iter().any(|g| !g.is_finite()) {
-            return Err(PriorError::Numerical(
-                "objective or gradient not finite during the Newton steps".into(),
-            ));
-        }
-        let rhs: Vec<f64> = eval.gradient.iter().map(|g| -g).collect();
-        let mut shift = 0.0;
-        let direction = loop {
-            if let Some(d) = eval.band.solve(&rhs, shift) {
-                break d;
-            }
-            shift = if shift == 0.0 { 1e-8 } else { shift * 100.0 };
-            if shift > 1e12 {
-                return Err(PriorError::Numerical("Hessian cannot be factored".into()));
-            }
-        };
+        let (eval, direction) = newton_direction(problem, x, (lambda, mu), bases)?;
         let slope: f64 = eval
             .gradient
             .iter()
@@ -1536,6 +1620,10 @@ impl GapTest {
 }
 
 /// Runs the inference (Algorithm 1 around Algorithm 2) of `prior` on one scan.
+///
+/// It runs on a worker thread of rayon's pool (the calling thread waits), so that the
+/// parallel evaluation of each Newton step's windows is not handed into the pool from
+/// outside at every step.
 pub fn infer(prior: &Prior, input: &ScanInput, params: &Params) -> Result<Solution> {
     rayon::scope(|_| infer_on_worker(prior, input, params))
 }
@@ -1932,12 +2020,10 @@ mod tests {
         );
     }
 
-    /// One Newton step's value, gradient and banded Hessian are those of a serial loop over
-    /// the windows, bit for bit, on one thread and on two.
-    #[test]
-    fn window_terms_are_added_in_window_order() {
+    /// 150 readings of a room corner, a gap and a wall, with a little noise, and the
+    /// rectangular prior.
+    fn corner_gap_and_wall() -> (ScanInput, Prior) {
         let phi: Vec<f64> = (0..150).map(|k| -1.5 + 0.02 * k as f64).collect();
-        // A room corner, a gap and a wall, with a little noise.
         let rho: Vec<f64> = phi
             .iter()
             .enumerate()
@@ -1953,6 +2039,64 @@ mod tests {
         let input = ScanInput::new(phi, rho, 0.01).expect("valid scan");
         let library = crate::Library::shipped().expect("shipped priors");
         let prior = library.compile("Rectangular prior").expect("prior");
+        (input, prior)
+    }
+
+    /// A Newton step uses the exact Hessian where the banded sum factors, and the
+    /// convexified one where it does not; both steps go downhill.
+    #[test]
+    fn newton_steps_use_the_exact_hessian_where_it_factors() {
+        let (input, prior) = corner_gap_and_wall();
+        let params = Params::default();
+        let members: Vec<usize> = (0..input.len()).collect();
+        // The corner forced into one region: an infeasible topology.
+        let links = vec![Topology::SameRegion; input.len() - 1];
+        let problem = build_problem(&prior, &input, &members, &links, &params);
+        let start: Vec<f64> = (0..problem.rho.len())
+            .flat_map(|j| [problem.rho[j], problem.alpha0[j]])
+            .collect();
+        let mut factored = [0, 0];
+        for (lambda, mu) in [(1.0, 1e-2), (1e8, 1e-9)] {
+            let mut bases = Vec::new();
+            let (eval, direction) =
+                newton_direction(&problem, &start, (lambda, mu), &mut bases).expect("a step");
+            let exact = problem.evaluate(&start, lambda, mu, &mut Vec::new(), HessianModel::Exact);
+            let convexified = problem.evaluate(
+                &start,
+                lambda,
+                mu,
+                &mut Vec::new(),
+                HessianModel::Convexified,
+            );
+            let rhs: Vec<f64> = exact.gradient.iter().map(|g| -g).collect();
+            let used = match exact.band.solve(&rhs, 0.0) {
+                Some(_) => {
+                    factored[0] += 1;
+                    &exact
+                }
+                None => {
+                    factored[1] += 1;
+                    &convexified
+                }
+            };
+            assert_eq!(eval.band.data, used.band.data, "lambda {lambda}");
+            assert_eq!(Some(direction.clone()), used.band.solve(&rhs, 0.0));
+            let slope: f64 = eval
+                .gradient
+                .iter()
+                .zip(&direction)
+                .map(|(g, d)| g * d)
+                .sum();
+            assert!(slope < 0.0, "lambda {lambda}: slope {slope}");
+        }
+        assert_eq!(factored, [1, 1], "one exact and one convexified step");
+    }
+
+    /// One Newton step's value, gradient and banded Hessian are those of a serial loop over
+    /// the windows, bit for bit, on one thread and on two.
+    #[test]
+    fn window_terms_are_added_in_window_order() {
+        let (input, prior) = corner_gap_and_wall();
         let params = Params::default();
         let members: Vec<usize> = (0..input.len()).collect();
         let mut links = vec![Topology::SameRegion; input.len() - 1];
@@ -1997,7 +2141,13 @@ mod tests {
             let (mut v, mut g, mut b) = (0.0, vec![0.0; n], Band::new(n, 2 * order - 1));
             let mut bases = Vec::new();
             pool.install(|| {
-                problem.add_windows::<4>(&x, lambda, (&mut v, &mut g, &mut b), &mut bases)
+                problem.add_windows::<4>(
+                    &x,
+                    lambda,
+                    (&mut v, &mut g, &mut b),
+                    &mut bases,
+                    HessianModel::Convexified,
+                )
             });
             assert_eq!(v.to_bits(), value.to_bits(), "{threads} threads");
             assert_eq!(bits(&g), bits(&gradient), "{threads} threads");

@@ -4,7 +4,8 @@
 //!
 //! - Inner loop (Algorithm 2): penalty homotopy for the prior's constraints
 //!   (`lambda f^2`, `lambda max(0, g)^2`, the smallest branch of a disjunction), log-barrier
-//!   for the bounds, Newton steps with backtracking. Gradients and Hessians are exact
+//!   for the bounds, Newton steps with backtracking (from at most 99.5 % of the way to the
+//!   nearest bound, the fraction-to-the-boundary rule). Gradients and Hessians are exact
 //!   (second-order dual numbers through the priorlet's tape). A Newton step uses the exact
 //!   Hessian when its banded sum (data, barrier and windows) is positive definite, which a
 //!   banded Cholesky factor in `O(n)` finds out, as it is at nearly every step (the data
@@ -1238,7 +1239,8 @@ fn newton(
         if -slope < 1e-12 * (1.0 + eval.value.abs()) {
             return Ok(step_count);
         }
-        let mut step = 1.0;
+        // At most a fraction of the way to the nearest bound (the barrier's domain).
+        let mut step = step_to_boundary(x, &direction, (&problem.lo, &problem.hi));
         let mut accepted = false;
         let mut trial = x.clone();
         while step > 1e-14 {
@@ -1266,6 +1268,28 @@ fn newton(
     }
     Ok(params.max_newton_steps)
 }
+
+/// The longest step along `direction`, at most 1, that goes at most [`FRACTION_TO_BOUNDARY`]
+/// of the way from `x` to the bounds `lo` and `hi` (the fraction-to-the-boundary rule of
+/// interior-point methods): the line search starts inside the barrier's domain instead of
+/// halving its way back into it.
+fn step_to_boundary(x: &[f64], direction: &[f64], (lo, hi): (&[f64], &[f64])) -> f64 {
+    let mut step = 1.0_f64;
+    for i in 0..x.len() {
+        let room = if direction[i] < 0.0 {
+            (x[i] - lo[i]) / -direction[i]
+        } else if direction[i] > 0.0 {
+            (hi[i] - x[i]) / direction[i]
+        } else {
+            continue;
+        };
+        step = step.min(FRACTION_TO_BOUNDARY * room);
+    }
+    step
+}
+
+/// How far towards the nearest bound a Newton step may go ([`step_to_boundary`]).
+const FRACTION_TO_BOUNDARY: f64 = 0.995;
 
 /// A Newton step taken in full whose decrement (`-gradient . direction`) is below this
 /// fraction of `1 + |value|` ends the homotopy stage without a further evaluation: that
@@ -2040,6 +2064,27 @@ mod tests {
         let library = crate::Library::shipped().expect("shipped priors");
         let prior = library.compile("Rectangular prior").expect("prior");
         (input, prior)
+    }
+
+    /// The line search starts at most 99.5 % of the way to the nearest bound, and at the
+    /// full step when no bound is that near.
+    #[test]
+    fn steps_stop_short_of_the_bounds() {
+        let (lo, hi) = (vec![0.0, -1.0, 2.0], vec![1.0, 1.0, 3.0]);
+        let x = vec![0.5, 0.0, 2.9];
+        // Within reach: a full step.
+        assert_eq!(step_to_boundary(&x, &[0.1, -0.5, 0.0], (&lo, &hi)), 1.0);
+        // The third coordinate would cross its upper bound (0.1 away) at a step of 0.5.
+        let step = step_to_boundary(&x, &[0.1, -0.5, 0.2], (&lo, &hi));
+        assert!((step - 0.995 * 0.5).abs() < 1e-15, "{step}");
+        // The first would cross its lower bound (0.5 away) at a step of 0.25.
+        let direction = [-2.0, 0.0, 0.2];
+        let step = step_to_boundary(&x, &direction, (&lo, &hi));
+        assert!((step - 0.995 * 0.25).abs() < 1e-15, "{step}");
+        for i in 0..3 {
+            let moved = x[i] + step * direction[i];
+            assert!(moved > lo[i] && moved < hi[i], "coordinate {i}: {moved}");
+        }
     }
 
     /// A Newton step uses the exact Hessian where the banded sum factors, and the

@@ -5,8 +5,11 @@
 //! - Inner loop (Algorithm 2): penalty homotopy for the prior's constraints
 //!   (`lambda f^2`, `lambda max(0, g)^2`, the smallest branch of a disjunction), log-barrier
 //!   for the bounds, Newton steps with backtracking (from at most 99.5 % of the way to the
-//!   nearest bound, the fraction-to-the-boundary rule). Gradients and Hessians are exact
-//!   (second-order dual numbers through the priorlet's tape). A Newton step uses the exact
+//!   nearest bound, the fraction-to-the-boundary rule). The barrier is primal-dual: the
+//!   bounds' multipliers are estimated along with `x` (`BoundDuals`, restarted on the
+//!   central path at each stage), and the Newton model's curvature of the barrier is theirs,
+//!   so an iterate pressed against a bound is not slowed to a crawl. Gradients and Hessians
+//!   are exact (second-order dual numbers through the priorlet's tape). A Newton step uses the exact
 //!   Hessian when its banded sum (data, barrier and windows) is positive definite, which a
 //!   banded Cholesky factor in `O(n)` finds out, as it is at nearly every step (the data
 //!   terms' curvature outweighs the penalties' negative curvature). Otherwise the Hessian is
@@ -601,6 +604,7 @@ impl Problem<'_> {
         x: &[f64],
         lambda: f64,
         mu: f64,
+        barrier_curvature: &[f64],
         bases: &mut Vec<f64>,
         model: HessianModel,
     ) -> Evaluation {
@@ -623,7 +627,7 @@ impl Problem<'_> {
             let (a, b) = (x[i] - self.lo[i], self.hi[i] - x[i]);
             value -= mu * (a.ln() + b.ln());
             gradient[i] += mu * (-1.0 / a + 1.0 / b);
-            *band.at(i, i) += mu * (1.0 / (a * a) + 1.0 / (b * b));
+            *band.at(i, i) += barrier_curvature[i];
         }
         match order {
             2 => self.add_windows::<4>(
@@ -1138,6 +1142,7 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
     let mut history = Vec::new();
     let mut polish = 0;
     let mut bases = Vec::new();
+    let mut duals = BoundDuals::new(&x, (&problem.lo, &problem.hi), mu);
     loop {
         newton(
             problem,
@@ -1145,7 +1150,7 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
             (lambda, mu),
             params,
             &mut buffer,
-            &mut bases,
+            (&mut bases, &mut duals),
         )?;
         let violations = problem.window_violations(&x);
         let max_violation = violations.iter().fold(0.0, |a: f64, &v| a.max(v));
@@ -1178,6 +1183,7 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
         }
         lambda *= params.penalty_factor;
         mu *= params.barrier_factor;
+        duals = BoundDuals::new(&x, (&problem.lo, &problem.hi), mu);
     }
 }
 
@@ -1189,6 +1195,7 @@ fn newton_direction(
     problem: &Problem,
     x: &[f64],
     (lambda, mu): (f64, f64),
+    barrier_curvature: &[f64],
     bases: &mut Vec<f64>,
 ) -> Result<(Evaluation, Vec<f64>)> {
     let finite = |eval: &Evaluation| {
@@ -1200,13 +1207,20 @@ fn newton_direction(
             ))
         }
     };
-    let exact = problem.evaluate(x, lambda, mu, bases, HessianModel::Exact);
+    let exact = problem.evaluate(x, lambda, mu, barrier_curvature, bases, HessianModel::Exact);
     finite(&exact)?;
     let rhs: Vec<f64> = exact.gradient.iter().map(|g| -g).collect();
     if let Some(direction) = exact.band.solve(&rhs, 0.0) {
         return Ok((exact, direction));
     }
-    let eval = problem.evaluate(x, lambda, mu, bases, HessianModel::Convexified);
+    let eval = problem.evaluate(
+        x,
+        lambda,
+        mu,
+        barrier_curvature,
+        bases,
+        HessianModel::Convexified,
+    );
     finite(&eval)?;
     let mut shift = 0.0;
     loop {
@@ -1226,10 +1240,12 @@ fn newton(
     (lambda, mu): (f64, f64),
     params: &Params,
     buffer: &mut Vec<f64>,
-    bases: &mut Vec<f64>,
+    (bases, duals): (&mut Vec<f64>, &mut BoundDuals),
 ) -> Result<usize> {
+    let bounds = (problem.lo.as_slice(), problem.hi.as_slice());
     for step_count in 0..params.max_newton_steps {
-        let (eval, direction) = newton_direction(problem, x, (lambda, mu), bases)?;
+        let curvature = duals.curvature(x, bounds);
+        let (eval, direction) = newton_direction(problem, x, (lambda, mu), &curvature, bases)?;
         let slope: f64 = eval
             .gradient
             .iter()
@@ -1258,7 +1274,9 @@ fn newton(
         if !accepted {
             return Ok(step_count);
         }
+        duals.update(x, &direction, mu, bounds);
         std::mem::swap(x, &mut trial);
+        duals.safeguard(x, mu, bounds);
         // A full step from a point this close to the minimum lands where the next evaluation
         // would find the stopping test above met (Newton converges quadratically there): the
         // stage ends at once, without that evaluation.
@@ -1267,6 +1285,68 @@ fn newton(
         }
     }
     Ok(params.max_newton_steps)
+}
+
+/// The multipliers of the bounds (primal-dual interior point, as IPOPT's): `z_lo (x - lo) =
+/// mu` and `z_hi (hi - x) = mu` at a stage's solution; each stage starts from these values at
+/// its first point (the central path). The Newton model's curvature of the barrier is
+/// `z_lo / (x - lo) + z_hi / (hi - x)` instead of the primal barrier's `mu / (x - lo)^2 +
+/// mu / (hi - x)^2`: near a bound the latter changes so fast that Newton steps crawl towards it.
+struct BoundDuals {
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+}
+
+/// How far [`BoundDuals`] may stray from `mu / slack` (IPOPT's kappa_Sigma).
+const DUAL_SAFEGUARD: f64 = 1e10;
+
+impl BoundDuals {
+    /// The multipliers on the central path at `x` for the barrier weight `mu`.
+    fn new(x: &[f64], (lo, hi): (&[f64], &[f64]), mu: f64) -> BoundDuals {
+        BoundDuals {
+            lower: (0..x.len()).map(|i| mu / (x[i] - lo[i])).collect(),
+            upper: (0..x.len()).map(|i| mu / (hi[i] - x[i])).collect(),
+        }
+    }
+
+    /// The barrier's curvature in the Newton model at `x`, per coordinate.
+    fn curvature(&self, x: &[f64], (lo, hi): (&[f64], &[f64])) -> Vec<f64> {
+        (0..x.len())
+            .map(|i| self.lower[i] / (x[i] - lo[i]) + self.upper[i] / (hi[i] - x[i]))
+            .collect()
+    }
+
+    /// The Newton step of the multipliers for the primal step `direction` from `x`, taken at
+    /// most [`FRACTION_TO_BOUNDARY`] of the way to zero, then kept within a factor
+    /// [`DUAL_SAFEGUARD`] of `mu / slack` at the new point `x + step direction`.
+    fn update(&mut self, x: &[f64], direction: &[f64], mu: f64, (lo, hi): (&[f64], &[f64])) {
+        let n = x.len();
+        let mut change = vec![0.0; 2 * n];
+        let mut step = 1.0_f64;
+        for i in 0..n {
+            let (a, b) = (x[i] - lo[i], hi[i] - x[i]);
+            change[i] = mu / a - self.lower[i] - self.lower[i] / a * direction[i];
+            change[n + i] = mu / b - self.upper[i] + self.upper[i] / b * direction[i];
+            for (z, dz) in [(self.lower[i], change[i]), (self.upper[i], change[n + i])] {
+                if dz < 0.0 {
+                    step = step.min(FRACTION_TO_BOUNDARY * z / -dz);
+                }
+            }
+        }
+        for i in 0..n {
+            self.lower[i] += step * change[i];
+            self.upper[i] += step * change[n + i];
+        }
+    }
+
+    /// Keeps each multiplier within a factor [`DUAL_SAFEGUARD`] of `mu / slack` at `x`.
+    fn safeguard(&mut self, x: &[f64], mu: f64, (lo, hi): (&[f64], &[f64])) {
+        for i in 0..x.len() {
+            let (a, b) = (x[i] - lo[i], hi[i] - x[i]);
+            self.lower[i] = self.lower[i].clamp(mu / (DUAL_SAFEGUARD * a), DUAL_SAFEGUARD * mu / a);
+            self.upper[i] = self.upper[i].clamp(mu / (DUAL_SAFEGUARD * b), DUAL_SAFEGUARD * mu / b);
+        }
+    }
 }
 
 /// The longest step along `direction`, at most 1, that goes at most [`FRACTION_TO_BOUNDARY`]
@@ -2087,6 +2167,41 @@ mod tests {
         }
     }
 
+    /// The bounds' multipliers start on the central path, where the barrier's curvature is
+    /// the primal barrier's, and step back to it.
+    #[test]
+    fn bound_multipliers_follow_the_central_path() {
+        let (lo, hi) = (vec![0.0, -1.0], vec![1.0, 1.0]);
+        let bounds = (lo.as_slice(), hi.as_slice());
+        let (x, mu) = (vec![0.2, 0.5], 1e-3);
+        let mut duals = BoundDuals::new(&x, bounds, mu);
+        let curvature = duals.curvature(&x, bounds);
+        let primal = [
+            mu / (0.2 * 0.2) + mu / (0.8 * 0.8),
+            mu / (1.5 * 1.5) + mu / (0.5 * 0.5),
+        ];
+        for i in 0..2 {
+            assert!((curvature[i] - primal[i]).abs() < 1e-12 * primal[i], "{i}");
+        }
+        // Twice the central multipliers: one step without a primal move halves them back.
+        for z in duals.lower.iter_mut().chain(duals.upper.iter_mut()) {
+            *z *= 2.0;
+        }
+        duals.update(&x, &[0.0, 0.0], mu, bounds);
+        let central = BoundDuals::new(&x, bounds, mu);
+        for i in 0..2 {
+            assert!((duals.lower[i] - central.lower[i]).abs() < 1e-12 * central.lower[i]);
+            assert!((duals.upper[i] - central.upper[i]).abs() < 1e-12 * central.upper[i]);
+        }
+        // A move towards the lower bound raises its multiplier and lowers the upper one's.
+        duals.update(&x, &[-0.1, 0.0], mu, bounds);
+        assert!(duals.lower[0] > central.lower[0] && duals.upper[0] < central.upper[0]);
+        // Far off the central path, they are brought back within the safeguard's factor.
+        duals.lower[1] = 1e30;
+        duals.safeguard(&x, mu, bounds);
+        assert!(duals.lower[1] <= DUAL_SAFEGUARD * mu / 1.5 * (1.0 + 1e-12));
+    }
+
     /// A Newton step uses the exact Hessian where the banded sum factors, and the
     /// convexified one where it does not; both steps go downhill.
     #[test]
@@ -2103,16 +2218,15 @@ mod tests {
         let mut factored = [0, 0];
         for (lambda, mu) in [(1.0, 1e-2), (1e8, 1e-9)] {
             let mut bases = Vec::new();
+            let bounds = (problem.lo.as_slice(), problem.hi.as_slice());
+            let curvature = BoundDuals::new(&start, bounds, mu).curvature(&start, bounds);
             let (eval, direction) =
-                newton_direction(&problem, &start, (lambda, mu), &mut bases).expect("a step");
-            let exact = problem.evaluate(&start, lambda, mu, &mut Vec::new(), HessianModel::Exact);
-            let convexified = problem.evaluate(
-                &start,
-                lambda,
-                mu,
-                &mut Vec::new(),
-                HessianModel::Convexified,
-            );
+                newton_direction(&problem, &start, (lambda, mu), &curvature, &mut bases)
+                    .expect("a step");
+            let evaluate =
+                |model| problem.evaluate(&start, lambda, mu, &curvature, &mut Vec::new(), model);
+            let exact = evaluate(HessianModel::Exact);
+            let convexified = evaluate(HessianModel::Convexified);
             let rhs: Vec<f64> = exact.gradient.iter().map(|g| -g).collect();
             let used = match exact.band.solve(&rhs, 0.0) {
                 Some(_) => {

@@ -32,7 +32,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use serde::{Deserialize, Serialize};
 use slam_core::nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
-use slam_core::{Pose2, Pose3, wrap_angle};
+use slam_core::{Pose2, Pose3, grid, wrap_angle};
 
 use crate::error::{Result, SensorError};
 use crate::events::{Dataset, Event, EventStream, Pump, Step, TimedEvent};
@@ -312,7 +312,7 @@ impl Grid {
         loop {
             self.keys.clear();
             self.keys
-                .extend(self.unsorted.iter().map(|(p, _)| Self::key(p, cell)));
+                .extend(self.unsorted.iter().map(|(p, _)| grid::cell_of(p, cell)));
             let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
             for &(x, y) in &self.keys {
                 lo = (lo.0.min(x), lo.1.min(y));
@@ -363,10 +363,6 @@ impl Grid {
         }
     }
 
-    fn key(p: &Vector2<f64>, cell: f64) -> (i64, i64) {
-        ((p.x / cell).floor() as i64, (p.y / cell).floor() as i64)
-    }
-
     /// The range in `points` of cell `(x, y)` (empty outside the bounding box).
     fn cell_range(&self, x: i64, y: i64) -> std::ops::Range<usize> {
         let (column, row) = (x - self.origin.0, y - self.origin.1);
@@ -386,7 +382,7 @@ impl Grid {
         reach: f64,
         accept: impl Fn(&Vector2<f64>) -> bool,
     ) -> Option<&(Vector2<f64>, Vector2<f64>)> {
-        let (cx, cy) = Self::key(z, self.cell);
+        let (cx, cy) = grid::cell_of(z, self.cell);
         let rings = (reach / self.cell).ceil() as i64;
         let mut best: Option<(f64, usize)> = None;
         let visit = |x: i64, y: i64, best: &mut Option<(f64, usize)>| {
@@ -400,44 +396,17 @@ impl Grid {
             }
         };
         for ring in 0..=rings {
-            if ring == 0 {
-                visit(cx, cy, &mut best);
-            } else {
-                for d in -ring..=ring {
-                    visit(cx + d, cy - ring, &mut best);
-                    visit(cx + d, cy + ring, &mut best);
-                }
-                for d in (1 - ring)..ring {
-                    visit(cx - ring, cy + d, &mut best);
-                    visit(cx + ring, cy + d, &mut best);
-                }
+            for (x, y) in grid::ring_cells(cx, cy, ring) {
+                visit(x, y, &mut best);
             }
             // Every point outside the square of cells searched so far is at least as far from
             // `z` as the square's nearest side (less a margin for rounding).
-            let cleared = self.clearance(z, (cx, cy), ring) - 1e-9;
+            let cleared = grid::clearance(z, self.cell, (cx, cy), ring) - 1e-9;
             if best.is_some_and(|(b, _)| cleared > 0.0 && b <= cleared * cleared) {
                 break;
             }
         }
         best.map(|(_, i)| &self.points[i])
-    }
-
-    /// The distance from `z` (in cell `(cx, cy)`) to the nearest side of the square of cells
-    /// within `ring` cells of its own: at least `ring` cells, and more unless `z` lies on
-    /// its cell's side.
-    fn clearance(&self, z: &Vector2<f64>, (cx, cy): (i64, i64), ring: i64) -> f64 {
-        let (low_x, low_y) = (
-            (cx - ring) as f64 * self.cell,
-            (cy - ring) as f64 * self.cell,
-        );
-        let (high_x, high_y) = (
-            (cx + ring + 1) as f64 * self.cell,
-            (cy + ring + 1) as f64 * self.cell,
-        );
-        (z.x - low_x)
-            .min(high_x - z.x)
-            .min(z.y - low_y)
-            .min(high_y - z.y)
     }
 }
 

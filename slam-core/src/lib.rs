@@ -28,6 +28,7 @@ mod coords;
 mod error;
 mod estimator;
 mod feature;
+pub mod grid;
 mod map;
 mod measurement;
 mod motion;

@@ -15,7 +15,7 @@
 
 use serde::Serialize;
 use slam_core::nalgebra::{Vector2, Vector3};
-use slam_core::{Pose2, Pose3, Shape};
+use slam_core::{Pose2, Pose3, Shape, grid};
 use slam_sensors::LaserScan;
 
 /// A second wall this close to a wall (at both ends of their overlap) doubles it, m.
@@ -357,7 +357,7 @@ impl<'a> SegmentGrid<'a> {
             .max((centre.1 - self.lo.1).abs())
             .max((centre.1 - self.hi.1).abs());
         for ring in 0..=reach {
-            for (x, y) in ring_cells(centre.0, centre.1, ring) {
+            for (x, y) in grid::ring_cells(centre.0, centre.1, ring) {
                 for &k in self.cells.get(&(x, y)).into_iter().flatten() {
                     let (a, b) = &self.walls[k];
                     best = best.min(point_to_segment(p, a, b));
@@ -372,10 +372,7 @@ impl<'a> SegmentGrid<'a> {
 
     /// The cell of `p`.
     fn key(&self, p: &Vector2<f64>) -> (i64, i64) {
-        (
-            (p.x / self.cell).floor() as i64,
-            (p.y / self.cell).floor() as i64,
-        )
+        grid::cell_of(p, self.cell)
     }
 
     /// How near a wall outside the square of cells within `ring` of `p`'s cell `centre` can
@@ -383,13 +380,7 @@ impl<'a> SegmentGrid<'a> {
     /// binned in every cell it passes through, so one that none of those cells holds lies
     /// outside the square.
     fn clearance(&self, p: &Vector2<f64>, centre: (i64, i64), ring: i64) -> f64 {
-        let low = |c: i64| (c - ring) as f64 * self.cell;
-        let high = |c: i64| (c + ring + 1) as f64 * self.cell;
-        (p.x - low(centre.0))
-            .min(high(centre.0) - p.x)
-            .min(p.y - low(centre.1))
-            .min(high(centre.1) - p.y)
-            - 1e-9
+        grid::clearance(p, self.cell, centre, ring) - 1e-9
     }
 }
 
@@ -400,7 +391,7 @@ impl SegmentGrid<'_> {
         let rings = (reach / self.cell).ceil() as i64 + 1;
         let mut best: Option<(usize, f64)> = None;
         for ring in 0..=rings {
-            for (x, y) in ring_cells(centre.0, centre.1, ring) {
+            for (x, y) in grid::ring_cells(centre.0, centre.1, ring) {
                 for &k in self.cells.get(&(x, y)).into_iter().flatten() {
                     let (a, b) = &self.walls[k];
                     let distance = point_to_segment(p, a, b);
@@ -417,47 +408,12 @@ impl SegmentGrid<'_> {
     }
 }
 
-/// The cells at Chebyshev distance `ring` from `(cx, cy)`: the bottom and top rows in pairs,
-/// then the left and right columns.
-fn ring_cells(cx: i64, cy: i64, ring: i64) -> impl Iterator<Item = (i64, i64)> {
-    // Cells in a row of the ring (none in ring 0, which is the centre alone).
-    let span = if ring == 0 { 0 } else { 2 * ring + 1 };
-    let rows = (0..span).flat_map(move |i| {
-        let d = i - ring;
-        [(cx + d, cy - ring), (cx + d, cy + ring)]
-    });
-    let columns = (0..span - 2).flat_map(move |i| {
-        let d = i + 1 - ring;
-        [(cx - ring, cy + d), (cx + ring, cy + d)]
-    });
-    (ring == 0)
-        .then_some((cx, cy))
-        .into_iter()
-        .chain(rows)
-        .chain(columns)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn v(x: f64, y: f64) -> Vector2<f64> {
         Vector2::new(x, y)
-    }
-
-    #[test]
-    fn a_ring_lists_each_of_its_cells_once() {
-        for ring in 0..5i64 {
-            let cells: Vec<_> = ring_cells(3, -2, ring).collect();
-            let distinct: std::collections::HashSet<_> = cells.iter().collect();
-            assert_eq!(cells.len(), (8 * ring).max(1) as usize);
-            assert_eq!(distinct.len(), cells.len());
-            assert!(
-                cells
-                    .iter()
-                    .all(|&(x, y)| (x - 3).abs().max((y + 2).abs()) == ring)
-            );
-        }
     }
 
     #[test]

@@ -18,8 +18,9 @@
 //!   (eigen-decomposition by cyclic Jacobi, `symmetric_eigen`, started from the window's
 //!   eigenvectors of the previous convexified step, `convexify_from`), so the banded sum is
 //!   positive definite. The windows' terms are computed in parallel (rayon, the whole inference
-//!   on a worker of its pool) and added in window order, so the results do not depend on the
-//!   number of threads.
+//!   on a worker of its pool; the line search's values too for problems of at least
+//!   `PARALLEL_VALUE_WINDOWS` windows) and added in window order, so the results do not
+//!   depend on the number of threads.
 //! - Outer loop (Algorithm 1): every reading in INMODEL and the strictest topology first;
 //!   while infeasible, the link with the largest penalty is relaxed (same region -> different
 //!   region -> different surface) and the readings of regions smaller than
@@ -527,6 +528,31 @@ impl Problem<'_> {
         &self.phi[start..start + self.prior.order]
     }
 
+    /// Window `w`'s energies and `lambda` times its penalties at `x`, in order, to `add`.
+    fn window_value_terms(
+        &self,
+        x: &[f64],
+        lambda: f64,
+        w: usize,
+        buffer: &mut Vec<f64>,
+        mut add: impl FnMut(f64),
+    ) {
+        let (start, topology) = self.windows[w];
+        let priorlet = self.prior.priorlet(topology);
+        if priorlet.is_empty() {
+            return;
+        }
+        let (local, phi) = (self.local(x, start), self.local_phi(start));
+        self.plan
+            .values(self.prior, (w, topology), local, phi, buffer);
+        for &e in &priorlet.energies {
+            add(buffer[e]);
+        }
+        for c in &priorlet.constraints {
+            add(lambda * constraint_penalty(|k| buffer[k], &c.branches).0);
+        }
+    }
+
     /// The data term, energies, penalties and barrier at `x` (value only). `None` outside
     /// the bounds or when not finite.
     fn value(&self, x: &[f64], lambda: f64, mu: f64, buffer: &mut Vec<f64>) -> Option<f64> {
@@ -543,19 +569,27 @@ impl Problem<'_> {
             }
             total -= mu * (a.ln() + b.ln());
         }
-        for (w, &(start, topology)) in self.windows.iter().enumerate() {
-            let priorlet = self.prior.priorlet(topology);
-            if priorlet.is_empty() {
-                continue;
+        if self.windows.len() < PARALLEL_VALUE_WINDOWS {
+            for w in 0..self.windows.len() {
+                self.window_value_terms(x, lambda, w, buffer, |term| total += term);
             }
-            let (local, phi) = (self.local(x, start), self.local_phi(start));
-            self.plan
-                .values(self.prior, (w, topology), local, phi, buffer);
-            for &e in &priorlet.energies {
-                total += buffer[e];
-            }
-            for c in &priorlet.constraints {
-                total += lambda * constraint_penalty(|k| buffer[k], &c.branches).0;
+        } else {
+            // The windows' terms in parallel, added in window order as the loop above adds
+            // them (the same sum bit for bit).
+            let terms: Vec<f64> = (0..self.windows.len())
+                .collect::<Vec<usize>>()
+                .par_chunks(WINDOW_CHUNK)
+                .flat_map_iter(|chunk| {
+                    let mut buffer = Vec::new();
+                    let mut terms = Vec::with_capacity(2 * chunk.len());
+                    for &w in chunk {
+                        self.window_value_terms(x, lambda, w, &mut buffer, |t| terms.push(t));
+                    }
+                    terms
+                })
+                .collect();
+            for term in terms {
+                total += term;
             }
         }
         total.is_finite().then_some(total)
@@ -761,6 +795,10 @@ fn convexify_stored<const N: usize>(
     }
     hessian
 }
+
+/// Problems with at least this many windows compute a line search's value in parallel
+/// ([`Problem::value`]); smaller ones on the calling thread.
+const PARALLEL_VALUE_WINDOWS: usize = 64;
 
 /// Windows per parallel task in [`Problem::add_windows`] (a window costs about a
 /// microsecond, mostly its eigen-decomposition).
@@ -2144,6 +2182,44 @@ mod tests {
         let library = crate::Library::shipped().expect("shipped priors");
         let prior = library.compile("Rectangular prior").expect("prior");
         (input, prior)
+    }
+
+    /// A large problem's value (its windows in parallel) is the serial sum bit for bit.
+    #[test]
+    fn parallel_values_are_the_serial_sum() {
+        let (input, prior) = corner_gap_and_wall();
+        let params = Params::default();
+        let members: Vec<usize> = (0..input.len()).collect();
+        let mut links = vec![Topology::SameRegion; input.len() - 1];
+        links[59] = Topology::DifferentRegion;
+        let problem = build_problem(&prior, &input, &members, &links, &params);
+        assert!(problem.windows.len() >= PARALLEL_VALUE_WINDOWS);
+        let x: Vec<f64> = (0..problem.rho.len())
+            .flat_map(|j| [problem.rho[j] + 1e-3, problem.alpha0[j] - 1e-2])
+            .collect();
+        let (lambda, mu) = (1e3, 1e-2);
+        let mut buffer = Vec::new();
+        // The data term and the barrier as `value` adds them, then the windows one by one.
+        let mut serial = 0.0;
+        for j in 0..problem.rho.len() {
+            let dr = x[2 * j] - problem.rho[j];
+            let da = (x[2 * j + 1] - problem.alpha0[j]) / problem.alpha_sigma[j];
+            serial += 0.5 * (problem.w_rho[j] * dr * dr + da * da);
+        }
+        for i in 0..x.len() {
+            serial -= mu * ((x[i] - problem.lo[i]).ln() + (problem.hi[i] - x[i]).ln());
+        }
+        for w in 0..problem.windows.len() {
+            problem.window_value_terms(&x, lambda, w, &mut buffer, |t| serial += t);
+        }
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("thread pool");
+            let value = pool.install(|| problem.value(&x, lambda, mu, &mut Vec::new()));
+            assert_eq!(value.map(f64::to_bits), Some(serial.to_bits()), "{threads}");
+        }
     }
 
     /// The line search starts at most 99.5 % of the way to the nearest bound, and at the

@@ -473,13 +473,15 @@ impl Band {
                 return None;
             }
             let d = s.sqrt();
-            l[j * w] = d;
+            // The factor's diagonal is kept as its reciprocal: products instead of divisions.
+            let inverse = 1.0 / d;
+            l[j * w] = inverse;
             for i in j + 1..(j + b + 1).min(n) {
                 let mut s = self.data[i * w + i - j];
                 for k in i.saturating_sub(b)..j {
                     s -= l[i * w + i - k] * l[j * w + j - k];
                 }
-                l[i * w + i - j] = s / d;
+                l[i * w + i - j] = s * inverse;
             }
         }
         let mut y = rhs.to_vec();
@@ -488,14 +490,14 @@ impl Band {
             for k in i.saturating_sub(b)..i {
                 s -= l[i * w + i - k] * y[k];
             }
-            y[i] = s / l[i * w];
+            y[i] = s * l[i * w];
         }
         for i in (0..n).rev() {
             let mut s = y[i];
             for k in i + 1..(i + b + 1).min(n) {
                 s -= l[k * w + k - i] * y[k];
             }
-            y[i] = s / l[i * w];
+            y[i] = s * l[i * w];
         }
         y.iter().all(|v| v.is_finite()).then_some(y)
     }

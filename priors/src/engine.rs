@@ -9,9 +9,9 @@
 //!   bounds' multipliers are estimated along with `x` (`BoundDuals`, restarted on the
 //!   central path at each stage), and the Newton model's curvature of the barrier is theirs,
 //!   so an iterate pressed against a bound is not slowed to a crawl. Gradients and Hessians
-//!   are exact (second-order dual numbers through the priorlet's tape). A Newton step uses the exact
-//!   Hessian when its banded sum (data, barrier and windows) is positive definite, which a
-//!   banded Cholesky factor in `O(n)` finds out, as it is at nearly every step (the data
+//!   are exact (second-order dual numbers through the priorlet's tape). A Newton step uses
+//!   the exact Hessian when its banded sum (data, barrier and windows) is positive definite,
+//!   which a banded Cholesky factor in `O(n)` finds out, as it is at nearly every step (the data
 //!   terms' curvature outweighs the penalties' negative curvature). Otherwise the Hessian is
 //!   convexified window by window (Algorithm 2, line 12): each priorlet window's Hessian
 //!   (energies plus penalties) has its negative eigenvalues raised to a small positive value
@@ -578,13 +578,14 @@ impl Problem<'_> {
         } else {
             // The windows' terms in parallel, added in window order as the loop above adds
             // them (the same sum bit for bit).
-            let terms: Vec<f64> = (0..self.windows.len())
-                .collect::<Vec<usize>>()
+            let terms: Vec<f64> = self
+                .windows
                 .par_chunks(WINDOW_CHUNK)
-                .flat_map_iter(|chunk| {
+                .enumerate()
+                .flat_map_iter(|(c, chunk)| {
                     let mut buffer = Vec::new();
                     let mut terms = Vec::with_capacity(2 * chunk.len());
-                    for &w in chunk {
+                    for w in c * WINDOW_CHUNK..c * WINDOW_CHUNK + chunk.len() {
                         self.window_value_terms(x, lambda, w, &mut buffer, |t| terms.push(t));
                     }
                     terms
@@ -696,14 +697,14 @@ impl Problem<'_> {
     }
 
     /// Adds every window's energies and penalties, with its Hessian exact or convexified
-    /// ([`convexify`]) as `model` says, to `value`, `gradient` and `band`. The windows are evaluated in
-    /// parallel (rayon) in chunks of [`WINDOW_CHUNK`], each into its own terms, which are then
-    /// added in window order, as a serial loop adds them: the sums are the same bit for bit
-    /// for any number of threads.
+    /// ([`convexify`]) as `model` says, to `value`, `gradient` and `band`. The windows are
+    /// evaluated in parallel (rayon) in chunks of [`WINDOW_CHUNK`], each into its own terms,
+    /// which are then added in window order, as a serial loop adds them: the sums are the same
+    /// bit for bit for any number of threads.
     ///
     /// Each window's eigen-decomposition starts from its eigenvectors of the previous
-    /// convexified evaluation, `N x N` numbers per window in `bases` (identity matrices when `bases` does
-    /// not have that length), which receives the new ones.
+    /// convexified evaluation, `N x N` numbers per window in `bases` (identity matrices when
+    /// `bases` does not have that length), which receives the new ones.
     fn add_windows<const N: usize>(
         &self,
         x: &[f64],

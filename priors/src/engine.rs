@@ -1384,10 +1384,17 @@ impl BoundDuals {
     fn safeguard(&mut self, x: &[f64], mu: f64, (lo, hi): (&[f64], &[f64])) {
         for i in 0..x.len() {
             let (a, b) = (x[i] - lo[i], hi[i] - x[i]);
-            self.lower[i] = self.lower[i].clamp(mu / (DUAL_SAFEGUARD * a), DUAL_SAFEGUARD * mu / a);
-            self.upper[i] = self.upper[i].clamp(mu / (DUAL_SAFEGUARD * b), DUAL_SAFEGUARD * mu / b);
+            self.lower[i] = safeguarded(self.lower[i], mu, a);
+            self.upper[i] = safeguarded(self.upper[i], mu, b);
         }
     }
+}
+
+/// `z` within a factor [`DUAL_SAFEGUARD`] of `mu / slack` (`max` then `min`, which never
+/// panic, where `f64::clamp` would on limits out of order).
+fn safeguarded(z: f64, mu: f64, slack: f64) -> f64 {
+    z.max(mu / (DUAL_SAFEGUARD * slack))
+        .min(DUAL_SAFEGUARD * mu / slack)
 }
 
 /// The longest step along `direction`, at most 1, that goes at most [`FRACTION_TO_BOUNDARY`]

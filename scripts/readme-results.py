@@ -19,6 +19,7 @@ Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
   victoria-park-fastslam  FastSLAM 2.0 on Victoria Park, 100 and 1000 particles  ~4 min
   em-polygon-intel   the em-polygon stage on the Intel lab's corrected poses       ~3 s
   mrclam             slam run --data mrclam:...:1                                  ~1 s
+  structure-prior-intel  slam prior on 24 Intel lab scans (rectangular prior)       ~10 s
   ipslam-intel       IPSLAM on the Intel lab, odometry seeds 1-3 (two settings) and paper settings ~6 min
   carmen-walls       configs/carmen-walls.toml beside MRPT icp-slam and rbpf-slam on the four
                      Radish logs with noisy odometry, seeds 1-3 (bench-laser-vs-mrpt.sh), and
@@ -28,7 +29,7 @@ Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
 The rb2d and carmen-walls rows install MRPT (Debian mrpt-apps) when missing.
 
 Run times are machine figures: a --check of a row with one (rb2d-kfslam, victoria-park,
-victoria-park-fastslam) fails whenever the time moves; read it as "regenerate", not as a
+victoria-park-fastslam, structure-prior-intel) fails whenever the time moves; read it as "regenerate", not as a
 regression.
 """
 
@@ -37,6 +38,8 @@ import concurrent.futures
 import json
 import math
 import os
+import re
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -189,6 +192,35 @@ def em_polygon_intel(work):
     return (
         f"{default}; with `max_mean_distance = 0.05`: {compact} "
         "(the paper: 49, 5 cm, 1455:1 on an outdoor map)"
+    )
+
+
+def structure_prior_intel(work):
+    """`slam prior` (rectangular prior, sigma 2 cm) on 24 scans of the Intel lab: the median and
+    largest inference time as the command prints it, and how many took at most 50 ms."""
+    log = DATA / "radish-carmen-corrected" / "intel-corrected.log.gz"
+    scans = list(range(0, 250, 25)) + list(range(250, 901, 50))
+    times = []
+    for scan in scans:
+        command = [
+            ARGS.slam, "prior", "--data", f"carmen:{log}", "--scan", str(scan),
+            "--sigma-range", "0.02", "--prior", "Rectangular prior",
+            "--out", str(work / f"prior-{scan}.png"),
+        ]
+        result = subprocess.run(command, capture_output=True, text=True)
+        if result.returncode != 0:
+            sys.exit(f"readme-results: {' '.join(command)} failed:\n{result.stderr}")
+        found = re.search(r" in ([0-9.]+)(µs|ms|s) ", result.stdout)
+        if found is None:
+            sys.exit(f"readme-results: no inference time in: {result.stdout.splitlines()[0]}")
+        value, unit = float(found.group(1)), found.group(2)
+        times.append(value * {"µs": 1e-3, "ms": 1.0, "s": 1e3}[unit])
+    slowest = max(range(len(scans)), key=lambda k: times[k])
+    within = sum(t <= 50.0 for t in times)
+    return (
+        f"median {statistics.median(times):.0f} ms, slowest {times[slowest]:.0f} ms "
+        f"(scan {scans[slowest]}); {within} of {len(scans)} in at most 50 ms (one run each; "
+        "the machine's speed moves these by up to 2x)"
     )
 
 
@@ -348,6 +380,10 @@ ROWS = {
         em_polygon_intel,
     ),
     "mrclam": ("MR.CLAM robot 1", mrclam),
+    "structure-prior-intel": (
+        "Intel lab, 24 scans (0, 25, ..., 900), `slam prior` with the rectangular prior",
+        structure_prior_intel,
+    ),
     "ipslam-intel": (
         "Intel lab (Radish corrected log), IPSLAM, odometry from the poses with noise (4.3 m alone)",
         ipslam_intel,

@@ -2194,19 +2194,32 @@ mod tests {
         (input, prior)
     }
 
+    /// Every reading of `input` as a member, and links of the same region but for
+    /// `changes` (`(link, topology)`).
+    fn whole_scan(input: &ScanInput, changes: &[(usize, Topology)]) -> (Vec<usize>, Vec<Topology>) {
+        let members: Vec<usize> = (0..input.len()).collect();
+        let mut links = vec![Topology::SameRegion; input.len() - 1];
+        for &(link, topology) in changes {
+            links[link] = topology;
+        }
+        (members, links)
+    }
+
+    /// A point near the problem's start: every range 1 mm long, every normal 0.01 rad less.
+    fn near_start(problem: &Problem) -> Vec<f64> {
+        (0..problem.rho.len())
+            .flat_map(|j| [problem.rho[j] + 1e-3, problem.alpha0[j] - 1e-2])
+            .collect()
+    }
+
     /// A large problem's value (its windows in parallel) is the serial sum bit for bit.
     #[test]
     fn parallel_values_are_the_serial_sum() {
         let (input, prior) = corner_gap_and_wall();
-        let params = Params::default();
-        let members: Vec<usize> = (0..input.len()).collect();
-        let mut links = vec![Topology::SameRegion; input.len() - 1];
-        links[59] = Topology::DifferentRegion;
-        let problem = build_problem(&prior, &input, &members, &links, &params);
+        let (members, links) = whole_scan(&input, &[(59, Topology::DifferentRegion)]);
+        let problem = build_problem(&prior, &input, &members, &links, &Params::default());
         assert!(problem.windows.len() >= PARALLEL_VALUE_WINDOWS);
-        let x: Vec<f64> = (0..problem.rho.len())
-            .flat_map(|j| [problem.rho[j] + 1e-3, problem.alpha0[j] - 1e-2])
-            .collect();
+        let x = near_start(&problem);
         let (lambda, mu) = (1e3, 1e-2);
         let mut buffer = Vec::new();
         // The data term and the barrier as `value` adds them, then the windows one by one.
@@ -2293,11 +2306,9 @@ mod tests {
     #[test]
     fn newton_steps_use_the_exact_hessian_where_it_factors() {
         let (input, prior) = corner_gap_and_wall();
-        let params = Params::default();
-        let members: Vec<usize> = (0..input.len()).collect();
         // The corner forced into one region: an infeasible topology.
-        let links = vec![Topology::SameRegion; input.len() - 1];
-        let problem = build_problem(&prior, &input, &members, &links, &params);
+        let (members, links) = whole_scan(&input, &[]);
+        let problem = build_problem(&prior, &input, &members, &links, &Params::default());
         let start: Vec<f64> = (0..problem.rho.len())
             .flat_map(|j| [problem.rho[j], problem.alpha0[j]])
             .collect();
@@ -2342,15 +2353,15 @@ mod tests {
     #[test]
     fn window_terms_are_added_in_window_order() {
         let (input, prior) = corner_gap_and_wall();
-        let params = Params::default();
-        let members: Vec<usize> = (0..input.len()).collect();
-        let mut links = vec![Topology::SameRegion; input.len() - 1];
-        links[59] = Topology::DifferentRegion;
-        links[100] = Topology::DifferentSurface;
-        let problem = build_problem(&prior, &input, &members, &links, &params);
-        let x: Vec<f64> = (0..problem.rho.len())
-            .flat_map(|j| [problem.rho[j] + 1e-3, problem.alpha0[j] - 1e-2])
-            .collect();
+        let (members, links) = whole_scan(
+            &input,
+            &[
+                (59, Topology::DifferentRegion),
+                (100, Topology::DifferentSurface),
+            ],
+        );
+        let problem = build_problem(&prior, &input, &members, &links, &Params::default());
+        let x = near_start(&problem);
         let lambda = 1e3;
         // The serial loop.
         let (n, order) = (problem.dim(), prior.order);

@@ -555,9 +555,8 @@ impl Problem<'_> {
         }
     }
 
-    /// The data term, energies, penalties and barrier at `x` (value only). `None` outside
-    /// the bounds or when not finite.
-    fn value(&self, x: &[f64], lambda: f64, mu: f64, buffer: &mut Vec<f64>) -> Option<f64> {
+    /// The data term plus the barrier at `x`; `None` outside the bounds.
+    fn data_and_barrier_value(&self, x: &[f64], mu: f64) -> Option<f64> {
         let mut total = 0.0;
         for j in 0..self.rho.len() {
             let dr = x[2 * j] - self.rho[j];
@@ -571,6 +570,13 @@ impl Problem<'_> {
             }
             total -= mu * (a.ln() + b.ln());
         }
+        Some(total)
+    }
+
+    /// The data term, energies, penalties and barrier at `x` (value only). `None` outside
+    /// the bounds or when not finite.
+    fn value(&self, x: &[f64], lambda: f64, mu: f64, buffer: &mut Vec<f64>) -> Option<f64> {
+        let mut total = self.data_and_barrier_value(x, mu)?;
         if self.windows.len() < PARALLEL_VALUE_WINDOWS {
             for w in 0..self.windows.len() {
                 self.window_value_terms(x, lambda, w, buffer, |term| total += term);
@@ -2222,16 +2228,10 @@ mod tests {
         let x = near_start(&problem);
         let (lambda, mu) = (1e3, 1e-2);
         let mut buffer = Vec::new();
-        // The data term and the barrier as `value` adds them, then the windows one by one.
-        let mut serial = 0.0;
-        for j in 0..problem.rho.len() {
-            let dr = x[2 * j] - problem.rho[j];
-            let da = (x[2 * j + 1] - problem.alpha0[j]) / problem.alpha_sigma[j];
-            serial += 0.5 * (problem.w_rho[j] * dr * dr + da * da);
-        }
-        for i in 0..x.len() {
-            serial -= mu * ((x[i] - problem.lo[i]).ln() + (problem.hi[i] - x[i]).ln());
-        }
+        // The data term and the barrier, then the windows one by one.
+        let mut serial = problem
+            .data_and_barrier_value(&x, mu)
+            .expect("inside the bounds");
         for w in 0..problem.windows.len() {
             problem.window_value_terms(&x, lambda, w, &mut buffer, |t| serial += t);
         }

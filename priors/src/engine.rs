@@ -17,10 +17,14 @@
 //!   (energies plus penalties) has its negative eigenvalues raised to a small positive value
 //!   (eigen-decomposition by cyclic Jacobi, `symmetric_eigen`, started from the window's
 //!   eigenvectors of the previous convexified step, `convexify_from`), so the banded sum is
-//!   positive definite. The windows' terms are computed in parallel (rayon, the whole inference
-//!   on a worker of its pool; the line search's values too for problems of at least
-//!   `PARALLEL_VALUE_WINDOWS` windows) and added in window order, so the results do not
-//!   depend on the number of threads.
+//!   positive definite. The windows' energies and penalties are summed apart (`WindowSums`),
+//!   so one evaluation serves every penalty weight: the line search's first trial point is
+//!   evaluated with its derivatives, and once accepted (nearly always) it is where the next
+//!   Newton step starts, in its stage or the next, without evaluating the windows again. The
+//!   windows' terms are computed in parallel (rayon, the whole inference on a worker of its
+//!   pool; a shorter trial's value too for problems of at least `PARALLEL_VALUE_WINDOWS`
+//!   windows) and added in window order, so the results do not depend on the number of
+//!   threads.
 //! - Outer loop (Algorithm 1): every reading in INMODEL and the strictest topology first;
 //!   while infeasible, the link with the largest penalty is relaxed (same region -> different
 //!   region -> different surface) and the readings of regions smaller than
@@ -424,15 +428,7 @@ pub(crate) fn windows_of(order: usize, links: &[Topology], m: usize) -> Vec<(usi
         .collect()
 }
 
-/// Which Hessian a Newton model uses for the windows' terms.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum HessianModel {
-    /// Each window's exact Hessian (symmetrized).
-    Exact,
-    /// Each window's Hessian with its negative eigenvalues raised ([`convexify_from`]).
-    Convexified,
-}
-
+/// The Newton model at one point: the objective's value, gradient and banded Hessian.
 struct Evaluation {
     value: f64,
     gradient: Vec<f64>,
@@ -530,29 +526,31 @@ impl Problem<'_> {
         &self.phi[start..start + self.prior.order]
     }
 
-    /// Window `w`'s energies and `lambda` times its penalties at `x`, in order, to `add`.
-    fn window_value_terms(
-        &self,
-        x: &[f64],
-        lambda: f64,
-        w: usize,
-        buffer: &mut Vec<f64>,
-        mut add: impl FnMut(f64),
-    ) {
+    /// Window `w`'s energies and penalties (squared violations, without `lambda`) at `x`,
+    /// each summed from zero in the priorlet's order, as [`split_window_terms`] sums them.
+    fn window_value_terms(&self, x: &[f64], w: usize, buffer: &mut Vec<f64>) -> (f64, f64) {
         let (start, topology) = self.windows[w];
         let priorlet = self.prior.priorlet(topology);
         if priorlet.is_empty() {
-            return;
+            return (0.0, 0.0);
         }
         let (local, phi) = (self.local(x, start), self.local_phi(start));
         self.plan
             .values(self.prior, (w, topology), local, phi, buffer);
+        let mut energy = 0.0;
         for &e in &priorlet.energies {
-            add(buffer[e]);
+            energy += buffer[e];
         }
+        let mut penalty = 0.0;
         for c in &priorlet.constraints {
-            add(lambda * constraint_penalty(|k| buffer[k], &c.branches).0);
+            let p = constraint_penalty(|k| buffer[k], &c.branches).0;
+            if p > 0.0 {
+                penalty += p;
+            } else if p.is_nan() {
+                penalty = f64::NAN;
+            }
         }
+        (energy, penalty)
     }
 
     /// The data term plus the barrier at `x`; `None` outside the bounds.
@@ -573,35 +571,51 @@ impl Problem<'_> {
         Some(total)
     }
 
+    /// The objective at `x` given the windows' summed energies and penalties there: the data
+    /// term and the barrier, plus `energy + lambda penalty`. `None` outside the bounds or
+    /// when not finite. [`Problem::value`] and the Newton steps' evaluations
+    /// ([`Problem::assemble`]) both compute it here, so their values compare exactly.
+    fn objective(
+        &self,
+        x: &[f64],
+        (energy, penalty): (f64, f64),
+        lambda: f64,
+        mu: f64,
+    ) -> Option<f64> {
+        let total = self.data_and_barrier_value(x, mu)? + energy + lambda * penalty;
+        total.is_finite().then_some(total)
+    }
+
     /// The data term, energies, penalties and barrier at `x` (value only). `None` outside
     /// the bounds or when not finite.
     fn value(&self, x: &[f64], lambda: f64, mu: f64, buffer: &mut Vec<f64>) -> Option<f64> {
-        let mut total = self.data_and_barrier_value(x, mu)?;
+        let (mut energy, mut penalty) = (0.0, 0.0);
         if self.windows.len() < PARALLEL_VALUE_WINDOWS {
             for w in 0..self.windows.len() {
-                self.window_value_terms(x, lambda, w, buffer, |term| total += term);
+                let (e, p) = self.window_value_terms(x, w, buffer);
+                energy += e;
+                penalty += p;
             }
         } else {
             // The windows' terms in parallel, added in window order as the loop above adds
-            // them (the same sum bit for bit).
-            let terms: Vec<f64> = self
+            // them (the same sums bit for bit).
+            let terms: Vec<Vec<(f64, f64)>> = self
                 .windows
                 .par_chunks(WINDOW_CHUNK)
                 .enumerate()
-                .flat_map_iter(|(c, chunk)| {
+                .map(|(c, chunk)| {
                     let mut buffer = Vec::new();
-                    let mut terms = Vec::with_capacity(2 * chunk.len());
-                    for w in c * WINDOW_CHUNK..c * WINDOW_CHUNK + chunk.len() {
-                        self.window_value_terms(x, lambda, w, &mut buffer, |t| terms.push(t));
-                    }
-                    terms
+                    (c * WINDOW_CHUNK..c * WINDOW_CHUNK + chunk.len())
+                        .map(|w| self.window_value_terms(x, w, &mut buffer))
+                        .collect()
                 })
                 .collect();
-            for term in terms {
-                total += term;
+            for (e, p) in terms.into_iter().flatten() {
+                energy += e;
+                penalty += p;
             }
         }
-        total.is_finite().then_some(total)
+        self.objective(x, (energy, penalty), lambda, mu)
     }
 
     /// Fit cost: data term of the ranges plus the energies.
@@ -622,102 +636,176 @@ impl Problem<'_> {
         total
     }
 
-    /// Largest violation per window.
-    pub fn window_violations(&self, x: &[f64]) -> Vec<f64> {
-        let mut buffer = Vec::new();
-        self.windows
-            .iter()
-            .map(|&(start, topology)| {
-                let priorlet = self.prior.priorlet(topology);
-                priorlet.eval(self.local(x, start), self.local_phi(start), &mut buffer);
-                priorlet
-                    .constraints
-                    .iter()
-                    .map(|c| constraint_penalty(|k| buffer[k], &c.branches).0.sqrt())
-                    .fold(0.0, f64::max)
-            })
-            .collect()
+    /// The data term's and the barrier's curvature (`barrier_curvature`, per coordinate) on
+    /// the diagonal of a band with the windows' width.
+    fn data_band(&self, barrier_curvature: &[f64]) -> Band {
+        let mut band = Band::new(self.dim(), 2 * self.prior.order - 1);
+        for j in 0..self.rho.len() {
+            *band.at(2 * j, 2 * j) += self.w_rho[j];
+            *band.at(2 * j + 1, 2 * j + 1) += 1.0 / (self.alpha_sigma[j] * self.alpha_sigma[j]);
+        }
+        for (i, &c) in barrier_curvature.iter().enumerate() {
+            *band.at(i, i) += c;
+        }
+        band
     }
 
-    /// Value, gradient and banded Hessian at `x`, the windows' Hessians as `model` says.
-    /// `bases` holds each window's eigenvectors of the previous convexified evaluation
-    /// ([`convexify_from`]; empty: none yet) and receives this one's.
-    fn evaluate(
+    /// Value, gradient and banded Hessian of the objective at `x`, from the windows' `sums`
+    /// there (exact Hessians): the data term, the barrier with the Newton model's
+    /// `barrier_curvature`, and the windows' energies plus `lambda` times their penalties.
+    fn assemble(
         &self,
         x: &[f64],
-        lambda: f64,
-        mu: f64,
+        sums: &WindowSums,
+        (lambda, mu): (f64, f64),
         barrier_curvature: &[f64],
-        bases: &mut Vec<f64>,
-        model: HessianModel,
-    ) -> Evaluation {
-        let n = self.dim();
-        let order = self.prior.order;
-        let mut band = Band::new(n, 2 * order - 1);
-        let mut gradient = vec![0.0; n];
-        let mut value = 0.0;
+    ) -> Result<Evaluation> {
+        let value = self
+            .objective(x, (sums.energy.value, sums.penalty.value), lambda, mu)
+            .filter(|_| sums.energy.gradient.iter().all(|g| g.is_finite()))
+            .filter(|_| sums.penalty.gradient.iter().all(|g| g.is_finite()))
+            .ok_or_else(|| {
+                PriorError::Numerical(
+                    "objective or gradient not finite during the Newton steps".into(),
+                )
+            })?;
+        let mut gradient = vec![0.0; self.dim()];
         for j in 0..self.rho.len() {
-            let dr = x[2 * j] - self.rho[j];
             let wa = 1.0 / (self.alpha_sigma[j] * self.alpha_sigma[j]);
-            let da = x[2 * j + 1] - self.alpha0[j];
-            value += 0.5 * (self.w_rho[j] * dr * dr + wa * da * da);
-            gradient[2 * j] += self.w_rho[j] * dr;
-            gradient[2 * j + 1] += wa * da;
-            *band.at(2 * j, 2 * j) += self.w_rho[j];
-            *band.at(2 * j + 1, 2 * j + 1) += wa;
+            gradient[2 * j] = self.w_rho[j] * (x[2 * j] - self.rho[j]);
+            gradient[2 * j + 1] = wa * (x[2 * j + 1] - self.alpha0[j]);
         }
-        for i in 0..n {
+        for (i, g) in gradient.iter_mut().enumerate() {
             let (a, b) = (x[i] - self.lo[i], self.hi[i] - x[i]);
-            value -= mu * (a.ln() + b.ln());
-            gradient[i] += mu * (-1.0 / a + 1.0 / b);
-            *band.at(i, i) += barrier_curvature[i];
+            *g += mu * (-1.0 / a + 1.0 / b)
+                + sums.energy.gradient[i]
+                + lambda * sums.penalty.gradient[i];
         }
-        match order {
-            2 => self.add_windows::<4>(
-                x,
-                lambda,
-                (&mut value, &mut gradient, &mut band),
-                bases,
-                model,
-            ),
-            3 => self.add_windows::<6>(
-                x,
-                lambda,
-                (&mut value, &mut gradient, &mut band),
-                bases,
-                model,
-            ),
-            _ => self.add_windows::<8>(
-                x,
-                lambda,
-                (&mut value, &mut gradient, &mut band),
-                bases,
-                model,
-            ),
+        let mut band = self.data_band(barrier_curvature);
+        for (entry, (e, p)) in band
+            .data
+            .iter_mut()
+            .zip(sums.energy.band.data.iter().zip(&sums.penalty.band.data))
+        {
+            *entry += e + lambda * p;
         }
-        Evaluation {
+        Ok(Evaluation {
             value,
             gradient,
             band,
+        })
+    }
+
+    /// Every window's terms at `x`, the energies and the penalties apart
+    /// ([`split_window_terms`]). The windows are evaluated in parallel (rayon) in chunks of
+    /// [`WINDOW_CHUNK`] and their terms added in window order, as a serial loop adds them:
+    /// the sums are the same bit for bit for any number of threads.
+    fn window_sums(&self, x: &[f64]) -> WindowSums {
+        match self.prior.order {
+            2 => self.window_sums_of::<4>(x),
+            3 => self.window_sums_of::<6>(x),
+            _ => self.window_sums_of::<8>(x),
         }
     }
 
-    /// Adds every window's energies and penalties, with its Hessian exact or convexified
-    /// ([`convexify`]) as `model` says, to `value`, `gradient` and `band`. The windows are
-    /// evaluated in parallel (rayon) in chunks of [`WINDOW_CHUNK`], each into its own terms,
-    /// which are then added in window order, as a serial loop adds them: the sums are the same
-    /// bit for bit for any number of threads.
+    fn window_sums_of<const N: usize>(&self, x: &[f64]) -> WindowSums {
+        let k = 2 * self.prior.order;
+        // One list per chunk (an indexed collect: no list grown and moved as it goes).
+        let terms: Vec<Vec<SplitTerms<N>>> = self
+            .windows
+            .par_chunks(WINDOW_CHUNK)
+            .enumerate()
+            .map(|(c, chunk)| {
+                let mut nodes = SparseNodes::<N>::new();
+                let mut out = Vec::with_capacity(chunk.len());
+                for (i, &(start, topology)) in chunk.iter().enumerate() {
+                    let priorlet = self.prior.priorlet(topology);
+                    if priorlet.is_empty() {
+                        continue;
+                    }
+                    let w = c * WINDOW_CHUNK + i;
+                    let (local, phi) = (self.local(x, start), self.local_phi(start));
+                    let buffer =
+                        self.plan
+                            .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
+                    let (energy, penalty, violation) = split_window_terms(priorlet, buffer);
+                    out.push(SplitTerms {
+                        window: w,
+                        energy,
+                        penalty,
+                        violation,
+                    });
+                }
+                out
+            })
+            .collect();
+        let (n, width) = (self.dim(), 2 * self.prior.order - 1);
+        let sum = || WindowSum {
+            value: 0.0,
+            gradient: vec![0.0; n],
+            band: Band::new(n, width),
+        };
+        let mut sums = WindowSums {
+            energy: sum(),
+            penalty: sum(),
+            violations: vec![0.0; self.windows.len()],
+        };
+        for t in terms.iter().flatten() {
+            let start = self.windows[t.window].0;
+            sums.violations[t.window] = t.violation;
+            for (total, term) in [
+                (&mut sums.energy, &t.energy),
+                (&mut sums.penalty, &t.penalty),
+            ] {
+                total.value += term.v;
+                let hessian = symmetrized(&term.h, k);
+                for i in 0..k {
+                    total.gradient[2 * start + i] += term.g[i];
+                    for j in 0..=i {
+                        *total.band.at(2 * start + i, 2 * start + j) += hessian[i][j];
+                    }
+                }
+            }
+        }
+        sums
+    }
+
+    /// The Newton model's banded Hessian at `x` with every window's Hessian (energies plus
+    /// `lambda` times penalties) convexified ([`convexify_from`]), for the steps where the
+    /// exact one is not positive definite: the data term's and the barrier's curvature
+    /// (`barrier_curvature`) plus the windows'. `bases` holds each window's eigenvectors of the
+    /// previous convexified evaluation (empty: none yet) and receives this one's.
+    fn convexified_band(
+        &self,
+        x: &[f64],
+        lambda: f64,
+        barrier_curvature: &[f64],
+        bases: &mut Vec<f64>,
+    ) -> Band {
+        let mut band = self.data_band(barrier_curvature);
+        match self.prior.order {
+            2 => self.add_convexified_windows::<4>(x, lambda, &mut band, bases),
+            3 => self.add_convexified_windows::<6>(x, lambda, &mut band, bases),
+            _ => self.add_convexified_windows::<8>(x, lambda, &mut band, bases),
+        }
+        band
+    }
+
+    /// Adds every window's convexified Hessian of its energies plus `lambda` times its
+    /// penalties ([`convexify`]) to `band`. The windows are evaluated in parallel (rayon) in
+    /// chunks of [`WINDOW_CHUNK`], each into its own terms, which are then added in window
+    /// order, as a serial loop adds them: the sums are the same bit for bit for any number of
+    /// threads.
     ///
     /// Each window's eigen-decomposition starts from its eigenvectors of the previous
     /// convexified evaluation, `N x N` numbers per window in `bases` (identity matrices when
     /// `bases` does not have that length), which receives the new ones.
-    fn add_windows<const N: usize>(
+    fn add_convexified_windows<const N: usize>(
         &self,
         x: &[f64],
         lambda: f64,
-        (value, gradient, band): (&mut f64, &mut [f64], &mut Band),
+        band: &mut Band,
         bases: &mut Vec<f64>,
-        model: HessianModel,
     ) {
         let k = 2 * self.prior.order;
         if bases.len() != self.windows.len() * N * N {
@@ -728,12 +816,12 @@ impl Problem<'_> {
                 }
             }
         }
-        let terms: Vec<WindowTerms<N>> = self
+        let terms: Vec<Vec<(usize, [[f64; N]; N])>> = self
             .windows
             .par_chunks(WINDOW_CHUNK)
             .zip(bases.par_chunks_mut(WINDOW_CHUNK * N * N))
             .enumerate()
-            .flat_map_iter(|(c, (chunk, chunk_bases))| {
+            .map(|(c, (chunk, chunk_bases))| {
                 let mut nodes = SparseNodes::<N>::new();
                 let mut out = Vec::with_capacity(chunk.len());
                 for (i, &(start, topology)) in chunk.iter().enumerate() {
@@ -747,29 +835,16 @@ impl Problem<'_> {
                         self.plan
                             .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
                     let total = window_terms(priorlet, buffer, lambda);
-                    let hessian = match model {
-                        HessianModel::Exact => symmetrized(&total.h, k),
-                        HessianModel::Convexified => {
-                            let stored = &mut chunk_bases[i * N * N..(i + 1) * N * N];
-                            convexify_stored(&total.h, k, stored)
-                        }
-                    };
-                    out.push(WindowTerms {
-                        start,
-                        value: total.v,
-                        gradient: total.g,
-                        hessian,
-                    });
+                    let stored = &mut chunk_bases[i * N * N..(i + 1) * N * N];
+                    out.push((start, convexify_stored(&total.h, k, stored)));
                 }
                 out
             })
             .collect();
-        for t in &terms {
-            *value += t.value;
+        for (start, hessian) in terms.iter().flatten() {
             for i in 0..k {
-                gradient[2 * t.start + i] += t.gradient[i];
                 for j in 0..=i {
-                    *band.at(2 * t.start + i, 2 * t.start + j) += t.hessian[i][j];
+                    *band.at(2 * start + i, 2 * start + j) += hessian[i][j];
                 }
             }
         }
@@ -813,13 +888,66 @@ const PARALLEL_VALUE_WINDOWS: usize = 64;
 /// microsecond, mostly its eigen-decomposition).
 const WINDOW_CHUNK: usize = 16;
 
-/// What one window adds to the objective: its value, gradient and convexified Hessian over
-/// its `2 order` inputs, which start at `x[2 start]`.
-struct WindowTerms<const N: usize> {
-    start: usize,
+/// What one window adds to the objective, over its `2 order` inputs: its energies, its
+/// penalties (without `lambda`) and its largest constraint violation.
+struct SplitTerms<const N: usize> {
+    window: usize,
+    energy: Sparse<N>,
+    penalty: Sparse<N>,
+    violation: f64,
+}
+
+/// The windows' energies or their penalties (squared violations, without `lambda`) summed
+/// at one point: value, gradient and banded Hessian (each window's symmetrized).
+struct WindowSum {
     value: f64,
-    gradient: [f64; N],
-    hessian: [[f64; N]; N],
+    gradient: Vec<f64>,
+    band: Band,
+}
+
+/// Every window's terms at one point, the energies and the penalties apart, so that one
+/// evaluation serves any penalty weight (`energy + lambda penalty`): the line search's
+/// accepted trial point is where the next Newton step starts, in its homotopy stage or the
+/// next, without evaluating the windows again.
+struct WindowSums {
+    energy: WindowSum,
+    penalty: WindowSum,
+    /// Each window's largest constraint violation (0 for a window with no constraint).
+    violations: Vec<f64>,
+}
+
+/// A window's energies, its penalties (each constraint's smallest branch squared, without
+/// `lambda`; NaN when a constraint's value is) and its largest violation, from the window's
+/// tape `nodes`. Values are those of [`Problem::window_value_terms`] bit for bit.
+fn split_window_terms<const N: usize>(
+    priorlet: &Priorlet,
+    nodes: &[Sparse<N>],
+) -> (Sparse<N>, Sparse<N>, f64) {
+    let inputs = |mask: u8| crate::dual::bits::<N>(mask);
+    let mut energy = Sparse::<N>::constant(0.0);
+    for &e in &priorlet.energies {
+        let (index, count) = inputs(energy.mask | nodes[e].mask);
+        energy.add_assign(&nodes[e], &index[..count]);
+    }
+    let mut penalty = Sparse::<N>::constant(0.0);
+    let mut largest = 0.0_f64;
+    for c in &priorlet.constraints {
+        let (p, branch) = constraint_penalty(|k| nodes[k].v, &c.branches);
+        largest = largest.max(p.sqrt());
+        if p > 0.0 {
+            // The smallest branch is violated: its value `f` is nonzero (an equality) or
+            // positive (an inequality), and the penalty is `f^2`.
+            let f = &nodes[c.branches[branch].node];
+            let (index, count) = inputs(f.mask);
+            let mut square = Sparse::constant(0.0);
+            square.set_mul(f, f, &index[..count]);
+            let (index, count) = inputs(penalty.mask | f.mask);
+            penalty.add_assign(&square, &index[..count]);
+        } else if p.is_nan() {
+            penalty.v = f64::NAN;
+        }
+    }
+    (energy, penalty, largest)
 }
 
 /// Value, gradient and Hessian of a window's energies plus `lambda` times its penalties, from
@@ -1190,16 +1318,17 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
     let mut polish = 0;
     let mut bases = Vec::new();
     let mut duals = BoundDuals::new(&x, (&problem.lo, &problem.hi), mu);
+    let mut sums = problem.window_sums(&x);
     loop {
         newton(
             problem,
-            &mut x,
+            (&mut x, &mut sums),
             (lambda, mu),
             params,
             &mut buffer,
             (&mut bases, &mut duals),
         )?;
-        let violations = problem.window_violations(&x);
+        let violations = &sums.violations;
         let max_violation = violations.iter().fold(0.0, |a: f64, &v| a.max(v));
         let feasible = max_violation < params.feasibility_tolerance;
         // A feasible topology's violation falls about as fast as lambda grows; one that
@@ -1216,7 +1345,7 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
         if polished || (!feasible && stalled) || lambda >= params.penalty_max {
             let m = problem.rho.len();
             let mut link_penalties = vec![0.0; m.saturating_sub(1)];
-            for (&(start, _), v) in problem.windows.iter().zip(&violations) {
+            for (&(start, _), v) in problem.windows.iter().zip(violations) {
                 for link in start..start + problem.prior.order - 1 {
                     link_penalties[link] += v * v;
                 }
@@ -1234,41 +1363,24 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
     }
 }
 
-/// The Newton model at `x` and its step: with the exact Hessian when the banded sum is
-/// positive definite (its Cholesky factor exists), as it is at nearly every step; otherwise
-/// with each window's Hessian convexified ([`HessianModel::Convexified`]) and, should even
-/// that fail to factor, a growing multiple of the identity added.
+/// The Newton model at `x` (where the windows' terms are `sums`) and its step: with the
+/// exact Hessian when the banded sum is positive definite (its Cholesky factor exists), as
+/// it is at nearly every step; otherwise with each window's Hessian convexified
+/// ([`Problem::convexified_band`]) and, should even that fail to factor, a growing multiple
+/// of the identity added.
 fn newton_direction(
     problem: &Problem,
-    x: &[f64],
+    (x, sums): (&[f64], &WindowSums),
     (lambda, mu): (f64, f64),
     barrier_curvature: &[f64],
     bases: &mut Vec<f64>,
 ) -> Result<(Evaluation, Vec<f64>)> {
-    let finite = |eval: &Evaluation| {
-        if eval.value.is_finite() && eval.gradient.iter().all(|g| g.is_finite()) {
-            Ok(())
-        } else {
-            Err(PriorError::Numerical(
-                "objective or gradient not finite during the Newton steps".into(),
-            ))
-        }
-    };
-    let exact = problem.evaluate(x, lambda, mu, barrier_curvature, bases, HessianModel::Exact);
-    finite(&exact)?;
-    let rhs: Vec<f64> = exact.gradient.iter().map(|g| -g).collect();
-    if let Some(direction) = exact.band.solve(&rhs, 0.0) {
-        return Ok((exact, direction));
+    let mut eval = problem.assemble(x, sums, (lambda, mu), barrier_curvature)?;
+    let rhs: Vec<f64> = eval.gradient.iter().map(|g| -g).collect();
+    if let Some(direction) = eval.band.solve(&rhs, 0.0) {
+        return Ok((eval, direction));
     }
-    let eval = problem.evaluate(
-        x,
-        lambda,
-        mu,
-        barrier_curvature,
-        bases,
-        HessianModel::Convexified,
-    );
-    finite(&eval)?;
+    eval.band = problem.convexified_band(x, lambda, barrier_curvature, bases);
     let mut shift = 0.0;
     loop {
         if let Some(direction) = eval.band.solve(&rhs, shift) {
@@ -1281,9 +1393,11 @@ fn newton_direction(
     }
 }
 
+/// The Newton steps of one homotopy stage from `x`, where the windows' terms are `sums`;
+/// both are moved to the stage's last point. Returns the number of steps.
 fn newton(
     problem: &Problem,
-    x: &mut Vec<f64>,
+    (x, sums): (&mut Vec<f64>, &mut WindowSums),
     (lambda, mu): (f64, f64),
     params: &Params,
     buffer: &mut Vec<f64>,
@@ -1292,7 +1406,8 @@ fn newton(
     let bounds = (problem.lo.as_slice(), problem.hi.as_slice());
     for step_count in 0..params.max_newton_steps {
         let curvature = duals.curvature(x, bounds);
-        let (eval, direction) = newton_direction(problem, x, (lambda, mu), &curvature, bases)?;
+        let (eval, direction) =
+            newton_direction(problem, (x, sums), (lambda, mu), &curvature, bases)?;
         let slope: f64 = eval
             .gradient
             .iter()
@@ -1306,16 +1421,31 @@ fn newton(
         let mut step = step_to_boundary(x, &direction, (&problem.lo, &problem.hi));
         let mut accepted = false;
         let mut trial = x.clone();
+        // The first trial point is evaluated with the windows' derivatives, since it is
+        // nearly always accepted and then is where the next step starts; a shorter one by
+        // its value alone.
+        let (mut first, mut at_first) = (true, None);
         while step > 1e-14 {
             for i in 0..x.len() {
                 trial[i] = x[i] + step * direction[i];
             }
-            if let Some(v) = problem.value(&trial, lambda, mu, buffer)
+            let value = if first {
+                first = false;
+                let at_trial = problem.window_sums(&trial);
+                let terms = (at_trial.energy.value, at_trial.penalty.value);
+                at_first = Some(at_trial);
+                problem.objective(&trial, terms, lambda, mu)
+            } else {
+                problem.value(&trial, lambda, mu, buffer)
+            };
+            if let Some(v) = value
                 && v <= eval.value + 1e-4 * step * slope
             {
                 accepted = true;
                 break;
             }
+            // Rejected: the first trial's terms are of no further use.
+            at_first = None;
             step *= 0.5;
         }
         if !accepted {
@@ -1324,6 +1454,10 @@ fn newton(
         duals.update(x, &direction, mu, bounds);
         std::mem::swap(x, &mut trial);
         duals.safeguard(x, mu, bounds);
+        *sums = match at_first {
+            Some(at_trial) => at_trial,
+            None => problem.window_sums(x),
+        };
         // A full step from a point this close to the minimum lands where the next evaluation
         // would find the stopping test above met (Newton converges quadratically there): the
         // stage ends at once, without that evaluation.
@@ -2228,13 +2362,17 @@ mod tests {
         let x = near_start(&problem);
         let (lambda, mu) = (1e3, 1e-2);
         let mut buffer = Vec::new();
-        // The data term and the barrier, then the windows one by one.
-        let mut serial = problem
-            .data_and_barrier_value(&x, mu)
-            .expect("inside the bounds");
+        // The windows one by one, then the data term and the barrier.
+        let (mut energy, mut penalty) = (0.0, 0.0);
         for w in 0..problem.windows.len() {
-            problem.window_value_terms(&x, lambda, w, &mut buffer, |t| serial += t);
+            let (e, p) = problem.window_value_terms(&x, w, &mut buffer);
+            energy += e;
+            penalty += p;
         }
+        assert!(penalty > 0.0, "a point off the constraints");
+        let serial = problem
+            .objective(&x, (energy, penalty), lambda, mu)
+            .expect("inside the bounds");
         for threads in [1, 2] {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
@@ -2312,31 +2450,38 @@ mod tests {
         let start: Vec<f64> = (0..problem.rho.len())
             .flat_map(|j| [problem.rho[j], problem.alpha0[j]])
             .collect();
+        let sums = problem.window_sums(&start);
         let mut factored = [0, 0];
         for (lambda, mu) in [(1.0, 1e-2), (1e8, 1e-9)] {
             let mut bases = Vec::new();
             let bounds = (problem.lo.as_slice(), problem.hi.as_slice());
             let curvature = BoundDuals::new(&start, bounds, mu).curvature(&start, bounds);
-            let (eval, direction) =
-                newton_direction(&problem, &start, (lambda, mu), &curvature, &mut bases)
-                    .expect("a step");
-            let evaluate =
-                |model| problem.evaluate(&start, lambda, mu, &curvature, &mut Vec::new(), model);
-            let exact = evaluate(HessianModel::Exact);
-            let convexified = evaluate(HessianModel::Convexified);
+            let (eval, direction) = newton_direction(
+                &problem,
+                (&start, &sums),
+                (lambda, mu),
+                &curvature,
+                &mut bases,
+            )
+            .expect("a step");
+            let exact = problem
+                .assemble(&start, &sums, (lambda, mu), &curvature)
+                .expect("finite");
+            let convexified = problem.convexified_band(&start, lambda, &curvature, &mut Vec::new());
             let rhs: Vec<f64> = exact.gradient.iter().map(|g| -g).collect();
             let used = match exact.band.solve(&rhs, 0.0) {
                 Some(_) => {
                     factored[0] += 1;
-                    &exact
+                    &exact.band
                 }
                 None => {
                     factored[1] += 1;
                     &convexified
                 }
             };
-            assert_eq!(eval.band.data, used.band.data, "lambda {lambda}");
-            assert_eq!(Some(direction.clone()), used.band.solve(&rhs, 0.0));
+            assert_eq!(eval.band.data, used.data, "lambda {lambda}");
+            assert_eq!(eval.gradient, exact.gradient, "lambda {lambda}");
+            assert_eq!(Some(direction.clone()), used.solve(&rhs, 0.0));
             let slope: f64 = eval
                 .gradient
                 .iter()
@@ -2348,8 +2493,63 @@ mod tests {
         assert_eq!(factored, [1, 1], "one exact and one convexified step");
     }
 
-    /// One Newton step's value, gradient and banded Hessian are those of a serial loop over
-    /// the windows, bit for bit, on one thread and on two.
+    /// The Newton model's gradient and Hessian are the objective's (`Problem::value`), by
+    /// central differences, with the primal barrier's curvature (the bound multipliers on
+    /// the central path), for a penalty weight whose constraints are violated.
+    #[test]
+    fn newton_model_is_the_derivative_of_the_value() {
+        let (input, prior) = corner_gap_and_wall();
+        let (members, links) = whole_scan(&input, &[(59, Topology::DifferentRegion)]);
+        let problem = build_problem(&prior, &input, &members, &links, &Params::default());
+        let x = near_start(&problem);
+        let (lambda, mu) = (10.0, 1e-2);
+        let bounds = (problem.lo.as_slice(), problem.hi.as_slice());
+        let curvature = |x: &[f64]| BoundDuals::new(x, bounds, mu).curvature(x, bounds);
+        let model = |x: &[f64]| {
+            let sums = problem.window_sums(x);
+            problem
+                .assemble(x, &sums, (lambda, mu), &curvature(x))
+                .expect("finite")
+        };
+        let at_x = model(&x);
+        let value = |x: &[f64]| {
+            problem
+                .value(x, lambda, mu, &mut Vec::new())
+                .expect("inside")
+        };
+        assert_eq!(at_x.value.to_bits(), value(&x).to_bits());
+        let h = 1e-6;
+        let moved = |i: usize, d: f64| {
+            let mut y = x.clone();
+            y[i] += d;
+            y
+        };
+        // Coordinates around the corner (readings 57-62) and at the scan's start.
+        for i in (114..126).chain(0..4) {
+            let numeric = (value(&moved(i, h)) - value(&moved(i, -h))) / (2.0 * h);
+            let analytic = at_x.gradient[i];
+            assert!(
+                (numeric - analytic).abs() <= 1e-5 * (1.0 + analytic.abs()),
+                "gradient {i}: {numeric} against {analytic}"
+            );
+            let (plus, minus) = (model(&moved(i, h)), model(&moved(i, -h)));
+            for j in i.saturating_sub(3)..=i {
+                let numeric = (plus.gradient[j] - minus.gradient[j]) / (2.0 * h);
+                let mut band = Band::new(at_x.band.n, at_x.band.b);
+                band.data.clone_from(&at_x.band.data);
+                let analytic = *band.at(i, j);
+                assert!(
+                    (numeric - analytic).abs() <= 1e-4 * (1.0 + analytic.abs()),
+                    "Hessian ({i}, {j}): {numeric} against {analytic}"
+                );
+            }
+        }
+    }
+
+    /// One evaluation's window sums (energies and penalties apart, with each window's
+    /// largest violation) and the convexified band are those of a serial loop over the
+    /// windows, bit for bit, on one thread and on two; the sums' values and violations are
+    /// those of the plain evaluation.
     #[test]
     fn window_terms_are_added_in_window_order() {
         let (input, prior) = corner_gap_and_wall();
@@ -2364,11 +2564,18 @@ mod tests {
         let x = near_start(&problem);
         let lambda = 1e3;
         // The serial loop.
-        let (n, order) = (problem.dim(), prior.order);
-        let mut value = 0.0;
-        let mut gradient = vec![0.0; n];
-        let mut band = Band::new(n, 2 * order - 1);
+        let (n, width) = (problem.dim(), 2 * prior.order - 1);
+        let sum = || WindowSum {
+            value: 0.0,
+            gradient: vec![0.0; n],
+            band: Band::new(n, width),
+        };
+        let (mut energy, mut penalty) = (sum(), sum());
+        let mut violations = vec![0.0; problem.windows.len()];
+        let zero_curvature = vec![0.0; n];
+        let mut convexified = problem.data_band(&zero_curvature);
         let mut nodes = SparseNodes::<4>::new();
+        let mut plain = Vec::new();
         for (w, &(start, topology)) in problem.windows.iter().enumerate() {
             let priorlet = prior.priorlet(topology);
             if priorlet.is_empty() {
@@ -2378,36 +2585,61 @@ mod tests {
             let buffer = problem
                 .plan
                 .derivatives(&prior, (w, topology), local, phi, &mut nodes);
+            let (e, p, violation) = split_window_terms(priorlet, buffer);
+            let (plain_e, plain_p) = problem.window_value_terms(&x, w, &mut plain);
+            assert_eq!(
+                (e.v.to_bits(), p.v.to_bits()),
+                (plain_e.to_bits(), plain_p.to_bits())
+            );
+            violations[w] = violation;
+            for (total, term) in [(&mut energy, &e), (&mut penalty, &p)] {
+                total.value += term.v;
+                let h = symmetrized(&term.h, 4);
+                for i in 0..4 {
+                    total.gradient[2 * start + i] += term.g[i];
+                    for j in 0..=i {
+                        *total.band.at(2 * start + i, 2 * start + j) += h[i][j];
+                    }
+                }
+            }
             let total = window_terms(priorlet, buffer, lambda);
-            value += total.v;
             let h = convexify::<4>(&total.h, 4, |largest| 1e-9 * largest.max(1.0));
             for i in 0..4 {
-                gradient[2 * start + i] += total.g[i];
                 for j in 0..=i {
-                    *band.at(2 * start + i, 2 * start + j) += h[i][j];
+                    *convexified.at(2 * start + i, 2 * start + j) += h[i][j];
                 }
             }
         }
+        assert!(
+            violations.iter().any(|&v| v > 0.0),
+            "a point off the constraints"
+        );
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let same = |a: &WindowSum, b: &WindowSum, what: &str| {
+            assert_eq!(a.value.to_bits(), b.value.to_bits(), "{what}");
+            assert_eq!(bits(&a.gradient), bits(&b.gradient), "{what}");
+            assert_eq!(bits(&a.band.data), bits(&b.band.data), "{what}");
+        };
         for threads in [1, 2] {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
                 .expect("thread pool");
-            let (mut v, mut g, mut b) = (0.0, vec![0.0; n], Band::new(n, 2 * order - 1));
-            let mut bases = Vec::new();
-            pool.install(|| {
-                problem.add_windows::<4>(
-                    &x,
-                    lambda,
-                    (&mut v, &mut g, &mut b),
-                    &mut bases,
-                    HessianModel::Convexified,
-                )
-            });
-            assert_eq!(v.to_bits(), value.to_bits(), "{threads} threads");
-            assert_eq!(bits(&g), bits(&gradient), "{threads} threads");
-            assert_eq!(bits(&b.data), bits(&band.data), "{threads} threads");
+            let sums = pool.install(|| problem.window_sums(&x));
+            same(&sums.energy, &energy, "energy");
+            same(&sums.penalty, &penalty, "penalty");
+            assert_eq!(
+                bits(&sums.violations),
+                bits(&violations),
+                "{threads} threads"
+            );
+            let band = pool
+                .install(|| problem.convexified_band(&x, lambda, &zero_curvature, &mut Vec::new()));
+            assert_eq!(
+                bits(&band.data),
+                bits(&convexified.data),
+                "{threads} threads"
+            );
         }
     }
 

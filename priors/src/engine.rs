@@ -21,10 +21,9 @@
 //!   so one evaluation serves every penalty weight: the line search's first trial point is
 //!   evaluated with its derivatives, and once accepted (nearly always) it is where the next
 //!   Newton step starts, in its stage or the next, without evaluating the windows again. The
-//!   windows' terms are computed in parallel (rayon, the whole inference on a worker of its
-//!   pool; a shorter trial's value too for problems of at least `PARALLEL_VALUE_WINDOWS`
-//!   windows) and added in window order, so the results do not depend on the number of
-//!   threads.
+//!   windows' terms are computed in parallel for problems of at least `PARALLEL_WINDOWS`
+//!   windows (rayon, the whole inference on a worker of its pool) and added in window order,
+//!   so the results do not depend on the number of threads.
 //! - Outer loop (Algorithm 1): every reading in INMODEL and the strictest topology first;
 //!   while infeasible, the link with the largest penalty is relaxed (same region -> different
 //!   region -> different surface) and the readings of regions smaller than
@@ -406,6 +405,9 @@ pub(crate) struct Problem<'a> {
     pub windows: Vec<(usize, Topology)>,
     /// What the Newton steps need of the priorlets on these windows.
     plan: WindowPlan,
+    /// Whether to evaluate the windows in parallel: when there are at least
+    /// [`PARALLEL_WINDOWS`], unless the problem is one of several solved at once.
+    parallel: bool,
 }
 
 /// The topology a window of consecutive links sees.
@@ -590,7 +592,7 @@ impl Problem<'_> {
     /// the bounds or when not finite.
     fn value(&self, x: &[f64], lambda: f64, mu: f64, buffer: &mut Vec<f64>) -> Option<f64> {
         let (mut energy, mut penalty) = (0.0, 0.0);
-        if self.windows.len() < PARALLEL_VALUE_WINDOWS {
+        if !self.parallel {
             for w in 0..self.windows.len() {
                 let (e, p) = self.window_value_terms(x, w, buffer);
                 energy += e;
@@ -708,37 +710,50 @@ impl Problem<'_> {
         }
     }
 
+    /// The split terms of the windows of chunk number `c`, `chunk`, at `x`.
+    fn chunk_terms<const N: usize>(
+        &self,
+        x: &[f64],
+        c: usize,
+        chunk: &[(usize, Topology)],
+    ) -> Vec<SplitTerms<N>> {
+        let mut nodes = SparseNodes::<N>::new();
+        let mut out = Vec::with_capacity(chunk.len());
+        for (i, &(start, topology)) in chunk.iter().enumerate() {
+            let priorlet = self.prior.priorlet(topology);
+            if priorlet.is_empty() {
+                continue;
+            }
+            let w = c * WINDOW_CHUNK + i;
+            let (local, phi) = (self.local(x, start), self.local_phi(start));
+            let buffer = self
+                .plan
+                .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
+            let (energy, penalty, violation) = split_window_terms(priorlet, buffer);
+            out.push(SplitTerms {
+                window: w,
+                energy,
+                penalty,
+                violation,
+            });
+        }
+        out
+    }
+
     fn window_sums_of<const N: usize>(&self, x: &[f64]) -> WindowSums {
         let k = 2 * self.prior.order;
         // One list per chunk (an indexed collect: no list grown and moved as it goes).
-        let terms: Vec<Vec<SplitTerms<N>>> = self
-            .windows
-            .par_chunks(WINDOW_CHUNK)
-            .enumerate()
-            .map(|(c, chunk)| {
-                let mut nodes = SparseNodes::<N>::new();
-                let mut out = Vec::with_capacity(chunk.len());
-                for (i, &(start, topology)) in chunk.iter().enumerate() {
-                    let priorlet = self.prior.priorlet(topology);
-                    if priorlet.is_empty() {
-                        continue;
-                    }
-                    let w = c * WINDOW_CHUNK + i;
-                    let (local, phi) = (self.local(x, start), self.local_phi(start));
-                    let buffer =
-                        self.plan
-                            .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
-                    let (energy, penalty, violation) = split_window_terms(priorlet, buffer);
-                    out.push(SplitTerms {
-                        window: w,
-                        energy,
-                        penalty,
-                        violation,
-                    });
-                }
-                out
-            })
-            .collect();
+        let terms: Vec<Vec<SplitTerms<N>>> = if !self.parallel {
+            let chunks = self.windows.chunks(WINDOW_CHUNK).enumerate();
+            chunks
+                .map(|(c, chunk)| self.chunk_terms(x, c, chunk))
+                .collect()
+        } else {
+            let chunks = self.windows.par_chunks(WINDOW_CHUNK).enumerate();
+            chunks
+                .map(|(c, chunk)| self.chunk_terms(x, c, chunk))
+                .collect()
+        };
         let (n, width) = (self.dim(), 2 * self.prior.order - 1);
         let sum = || WindowSum {
             value: 0.0,
@@ -880,9 +895,10 @@ fn convexify_stored<const N: usize>(
     hessian
 }
 
-/// Problems with at least this many windows compute a line search's value in parallel
-/// ([`Problem::value`]); smaller ones on the calling thread.
-const PARALLEL_VALUE_WINDOWS: usize = 64;
+/// Problems with at least this many windows evaluate their windows in parallel
+/// ([`Problem::window_sums`], [`Problem::value`]); smaller ones on the calling thread, where
+/// waking a second thread costs about what it saves.
+const PARALLEL_WINDOWS: usize = 64;
 
 /// Windows per parallel task in [`Problem::add_windows`] (a window costs about a
 /// microsecond, mostly its eigen-decomposition).
@@ -1700,6 +1716,7 @@ fn build_problem<'a>(
         lo,
         hi,
         plan: WindowPlan::new(prior, &windows, &phi),
+        parallel: windows.len() >= PARALLEL_WINDOWS,
         windows,
         phi,
     }
@@ -1713,15 +1730,23 @@ fn build_problem<'a>(
 /// Each part's normals are unwrapped from its own first reading; the parts' results are
 /// shifted by whole turns to continue the unwrapping of the whole scan (the priorlets see
 /// only differences and trigonometric functions of the normals within a part's windows).
+///
+/// A part's result depends only on its readings and links, so parts that a coming topology
+/// will need can be solved ahead, several at once ([`PartSolver::prefetch`]): the results,
+/// and the count of inner optimizations reported, are those of solving them one by one.
 struct PartSolver<'a> {
     prior: &'a Prior,
     input: &'a ScanInput,
     params: &'a Params,
     /// Results by part: its readings and its links.
-    solved: HashMap<(Vec<usize>, Vec<Topology>), SolvedPart>,
-    /// Inner optimizations run so far (parts solved).
+    solved: HashMap<PartKey, SolvedPart>,
+    /// Parts used so far by [`PartSolver::solve`] (inner optimizations of the topologies
+    /// tried; a part solved ahead and never used is not counted).
     inner_optimizations: usize,
 }
+
+/// A part: its readings and its links.
+type PartKey = (Vec<usize>, Vec<Topology>);
 
 /// A part's inner optimization, with its first and last initial normal (for the unwrapping
 /// across parts).
@@ -1729,6 +1754,8 @@ struct SolvedPart {
     inner: Inner,
     first_normal: f64,
     last_normal: f64,
+    /// Whether [`PartSolver::solve`] has used it.
+    used: bool,
 }
 
 impl<'a> PartSolver<'a> {
@@ -1739,6 +1766,61 @@ impl<'a> PartSolver<'a> {
             params,
             solved: HashMap::new(),
             inner_optimizations: 0,
+        }
+    }
+
+    /// The inner optimization of one part (not yet used); its windows evaluated in parallel
+    /// when it is large enough and `alone` (not one of several parts solved at once).
+    fn solve_part(
+        (prior, input, params): (&Prior, &ScanInput, &Params),
+        (readings, links): &PartKey,
+        alone: bool,
+    ) -> Result<SolvedPart> {
+        let mut problem = build_problem(prior, input, readings, links, params);
+        problem.parallel &= alone;
+        Ok(SolvedPart {
+            inner: inner_optimization(&problem, params)?,
+            first_normal: problem.alpha0.first().copied().unwrap_or(0.0),
+            last_normal: problem.alpha0.last().copied().unwrap_or(0.0),
+            used: false,
+        })
+    }
+
+    /// Solves the first parts of `topologies` (INMODEL readings and links, in order) that are
+    /// not solved yet, as many as there are threads, in parallel, for [`PartSolver::solve`] to
+    /// find. A part whose inner optimization fails is left out: `solve` meets the same error
+    /// when it needs that part.
+    fn prefetch(&mut self, topologies: &[(Vec<usize>, Vec<Topology>)]) {
+        let threads = rayon::current_num_threads();
+        let mut missing: Vec<PartKey> = Vec::new();
+        for (members, links) in topologies {
+            if missing.len() >= threads {
+                break;
+            }
+            let mut start = 0;
+            for end in part_ends(self.prior, links, members.len()) {
+                let key = (members[start..end].to_vec(), links[start..end - 1].to_vec());
+                if !self.solved.contains_key(&key) && !missing.contains(&key) {
+                    missing.push(key);
+                }
+                start = end;
+            }
+        }
+        if missing.len() < 2 {
+            return;
+        }
+        let context = (self.prior, self.input, self.params);
+        let solved: Vec<(PartKey, Result<SolvedPart>)> = missing
+            .into_par_iter()
+            .map(|key| {
+                let part = Self::solve_part(context, &key, false);
+                (key, part)
+            })
+            .collect();
+        for (key, part) in solved {
+            if let Ok(part) = part {
+                self.solved.insert(key, part);
+            }
         }
     }
 
@@ -1754,27 +1836,26 @@ impl<'a> PartSolver<'a> {
         };
         let mut previous_last_normal: Option<f64> = None;
         let mut start = 0;
+        let context = (self.prior, self.input, self.params);
         for end in part_ends(self.prior, links, m) {
             let key = (members[start..end].to_vec(), links[start..end - 1].to_vec());
+            let part = match self.solved.entry(key) {
+                Entry::Occupied(solved) => solved.into_mut(),
+                Entry::Vacant(part) => {
+                    let solved = Self::solve_part(context, part.key(), true)?;
+                    part.insert(solved)
+                }
+            };
+            if !part.used {
+                part.used = true;
+                self.inner_optimizations += 1;
+            }
             let SolvedPart {
                 inner,
                 first_normal,
                 last_normal,
-            } = &*match self.solved.entry(key) {
-                Entry::Occupied(solved) => solved.into_mut(),
-                Entry::Vacant(part) => {
-                    let (readings, part_links) = part.key();
-                    let problem =
-                        build_problem(self.prior, self.input, readings, part_links, self.params);
-                    let inner = inner_optimization(&problem, self.params)?;
-                    self.inner_optimizations += 1;
-                    part.insert(SolvedPart {
-                        inner,
-                        first_normal: problem.alpha0.first().copied().unwrap_or(0.0),
-                        last_normal: problem.alpha0.last().copied().unwrap_or(0.0),
-                    })
-                }
-            };
+                ..
+            } = &*part;
             // build_problem's unwrapping, continued from the previous part.
             let shift = previous_last_normal.map_or(0.0, |previous| {
                 -((first_normal - previous) / std::f64::consts::TAU).round() * std::f64::consts::TAU
@@ -1791,6 +1872,33 @@ impl<'a> PartSolver<'a> {
         }
         Ok(whole)
     }
+}
+
+/// The next weaker topology of a link: same region, then different region, then different
+/// surface.
+fn relaxed(link: Topology) -> Topology {
+    match link {
+        Topology::SameRegion => Topology::DifferentRegion,
+        _ => Topology::DifferentSurface,
+    }
+}
+
+/// The topology with region boundary `k` (a link that is not same-region) moved by one
+/// reading in `direction` (-1 or 1): link `j = k + direction` takes `k`'s topology and `k`
+/// becomes same-region. `(j, topology)`; `None` when `j` is past the ends or a boundary too.
+fn moved_boundary(
+    links: &[Topology],
+    k: usize,
+    direction: isize,
+) -> Option<(usize, Vec<Topology>)> {
+    let j = usize::try_from(k as isize + direction).ok()?;
+    if links.get(j) != Some(&Topology::SameRegion) {
+        return None;
+    }
+    let mut trial = links.to_vec();
+    trial[j] = trial[k];
+    trial[k] = Topology::SameRegion;
+    Some((j, trial))
 }
 
 /// The ends (exclusive) of the runs of the `m` readings between links that no priorlet
@@ -1953,6 +2061,8 @@ fn infer_on_worker(prior: &Prior, input: &ScanInput, params: &Params) -> Result<
     let mut outer = 0;
     let mut result;
     let mut parts = PartSolver::new(prior, input, params);
+    // The first topology's parts at once; later ones change one part at a time.
+    parts.prefetch(&[(members.clone(), links.clone())]);
     loop {
         outer += 1;
         result = parts.solve(&members, &links)?;
@@ -1967,10 +2077,7 @@ fn infer_on_worker(prior: &Prior, input: &ScanInput, params: &Params) -> Result<
             .max_by(|a, b| a.1.total_cmp(b.1))
             .map(|(k, _)| k);
         let Some(k) = candidate else { break };
-        links[k] = match links[k] {
-            Topology::SameRegion => Topology::DifferentRegion,
-            _ => Topology::DifferentSurface,
-        };
+        links[k] = relaxed(links[k]);
         remove_lonely_points(&mut members, &mut links, min_points, input, &gap);
         if members.len() < prior.order {
             return Err(PriorError::InvalidInput(
@@ -1985,45 +2092,52 @@ fn infer_on_worker(prior: &Prior, input: &ScanInput, params: &Params) -> Result<
         let boundaries: Vec<usize> = (0..links.len())
             .filter(|&k| links[k] != Topology::SameRegion)
             .collect();
-        for k0 in boundaries {
-            for direction in [-1_isize, 1] {
-                let mut k = k0;
-                for _ in 0..3 {
-                    let j = k as isize + direction;
-                    if j < 0
-                        || j as usize >= links.len()
-                        || links[j as usize] != Topology::SameRegion
-                    {
-                        break;
-                    }
-                    let j = j as usize;
-                    let mut trial = links.clone();
-                    trial[j] = trial[k];
-                    trial[k] = Topology::SameRegion;
-                    let mut trial_members = members.clone();
-                    let mut trial_links = trial.clone();
-                    if remove_lonely_points(
-                        &mut trial_members,
-                        &mut trial_links,
-                        min_points,
-                        input,
-                        &gap,
-                    ) {
-                        break;
-                    }
-                    let trial_problem = build_problem(prior, input, &members, &trial, params);
-                    outer += 1;
-                    let trial_result = parts.solve(&members, &trial)?;
-                    let cost = trial_problem.fit_cost(&trial_result.x);
-                    if trial_result.feasible && cost < best_cost - 1e-9 {
-                        best_cost = cost;
-                        links = trial;
-                        result = trial_result;
-                        problem = trial_problem;
-                        k = j;
-                    } else {
-                        break;
-                    }
+        let moves: Vec<(usize, isize)> = boundaries
+            .iter()
+            .flat_map(|&k0| [(k0, -1), (k0, 1)])
+            .collect();
+        // A move that would leave a region too small is not tried.
+        let keeps_every_reading = |trial: &[Topology]| {
+            let (mut trial_members, mut trial_links) = (members.clone(), trial.to_vec());
+            !remove_lonely_points(
+                &mut trial_members,
+                &mut trial_links,
+                min_points,
+                input,
+                &gap,
+            )
+        };
+        for (next, &(k0, direction)) in moves.iter().enumerate() {
+            let mut k = k0;
+            for _ in 0..3 {
+                // This move and the first move of every later boundary and direction from
+                // the current topology, solved ahead in parallel.
+                let coming =
+                    std::iter::once((k, direction)).chain(moves[next + 1..].iter().copied());
+                let coming: Vec<(Vec<usize>, Vec<Topology>)> = coming
+                    .filter_map(|(k, direction)| moved_boundary(&links, k, direction))
+                    .filter(|(_, trial)| keeps_every_reading(trial))
+                    .map(|(_, trial)| (members.clone(), trial))
+                    .collect();
+                parts.prefetch(&coming);
+                let Some((j, trial)) = moved_boundary(&links, k, direction) else {
+                    break;
+                };
+                if !keeps_every_reading(&trial) {
+                    break;
+                }
+                let trial_problem = build_problem(prior, input, &members, &trial, params);
+                outer += 1;
+                let trial_result = parts.solve(&members, &trial)?;
+                let cost = trial_problem.fit_cost(&trial_result.x);
+                if trial_result.feasible && cost < best_cost - 1e-9 {
+                    best_cost = cost;
+                    links = trial;
+                    result = trial_result;
+                    problem = trial_problem;
+                    k = j;
+                } else {
+                    break;
                 }
             }
         }
@@ -2301,6 +2415,7 @@ mod tests {
         let (one, two) = (solve(1), solve(2));
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert!(one.feasible && one.outer_iterations > 1);
+        assert_eq!(one.inner_optimizations, two.inner_optimizations);
         assert_eq!(bits(&one.rho), bits(&two.rho));
         assert_eq!(bits(&one.alpha), bits(&two.alpha));
         assert_eq!(one.in_model, two.in_model);
@@ -2310,6 +2425,59 @@ mod tests {
             [one.max_violation, one.fit_cost, one.objective].map(f64::to_bits),
             [two.max_violation, two.fit_cost, two.objective].map(f64::to_bits)
         );
+    }
+
+    /// Parts solved ahead, two at once, are those `solve` finds: its result is the same bit
+    /// for bit as without them, and it counts only the parts it uses.
+    #[test]
+    fn parts_solved_ahead_are_the_parts_solved_one_by_one() {
+        let (input, prior) = corner_gap_and_wall();
+        let params = Params::default();
+        let (members, links) = whole_scan(
+            &input,
+            &[
+                (59, Topology::DifferentRegion),
+                (100, Topology::DifferentSurface),
+            ],
+        );
+        assert_eq!(
+            part_ends(&prior, &links, members.len()).len(),
+            2,
+            "two parts"
+        );
+        // Another topology, whose first part is new.
+        let mut other = links.clone();
+        other[59] = Topology::DifferentSurface;
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .expect("thread pool");
+        let mut ahead = PartSolver::new(&prior, &input, &params);
+        pool.install(|| {
+            ahead.prefetch(&[
+                (members.clone(), links.clone()),
+                (members.clone(), other.clone()),
+            ])
+        });
+        assert_eq!(ahead.solved.len(), 2, "as many parts as threads");
+        assert_eq!(ahead.inner_optimizations, 0, "none used yet");
+        let mut one_by_one = PartSolver::new(&prior, &input, &params);
+        let bits = |inner: &Inner| inner.x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        let first = pool
+            .install(|| ahead.solve(&members, &links))
+            .expect("solved");
+        let expected = one_by_one.solve(&members, &links).expect("solved");
+        assert_eq!(bits(&first), bits(&expected));
+        assert_eq!(first.link_penalties, expected.link_penalties);
+        assert_eq!(ahead.solved.len(), 2, "found, not solved again");
+        assert_eq!(ahead.inner_optimizations, 2);
+        assert_eq!(one_by_one.inner_optimizations, 2);
+        let second = pool
+            .install(|| ahead.solve(&members, &other))
+            .expect("solved");
+        let expected = one_by_one.solve(&members, &other).expect("solved");
+        assert_eq!(bits(&second), bits(&expected));
+        assert_eq!(ahead.inner_optimizations, one_by_one.inner_optimizations);
     }
 
     /// 150 readings of a room corner, a gap and a wall, with a little noise, and the
@@ -2358,7 +2526,7 @@ mod tests {
         let (input, prior) = corner_gap_and_wall();
         let (members, links) = whole_scan(&input, &[(59, Topology::DifferentRegion)]);
         let problem = build_problem(&prior, &input, &members, &links, &Params::default());
-        assert!(problem.windows.len() >= PARALLEL_VALUE_WINDOWS);
+        assert!(problem.windows.len() >= PARALLEL_WINDOWS);
         let x = near_start(&problem);
         let (lambda, mu) = (1e3, 1e-2);
         let mut buffer = Vec::new();

@@ -182,14 +182,48 @@ impl WindowPlan {
         for &k in &plan.constants {
             buffer[k].v = constants[k];
         }
+        // The sine and cosine of the last argument a `sin` or `cos` node took: a priorlet
+        // usually takes both of one angle (a normal's `[cos(alpha); sin(alpha)]`).
+        let mut trig = SinCos::default();
         for step in &plan.steps {
             let (earlier, rest) = buffer.split_at_mut(step.node);
             // Inputs are below 2 order <= N (the checker bounds the indices of rho and alpha).
             let index = &step.index[..step.count];
             let index = &index[..index.partition_point(|&i| i < N)];
-            set_node(&step.op, (x, phi), earlier, index, &mut rest[0]);
+            match step.op {
+                Op::Sin(a) | Op::Cos(a) => {
+                    let (sin, cos) = trig.at(earlier[a].v);
+                    let derivatives = match step.op {
+                        Op::Sin(_) => (sin, cos, -sin),
+                        _ => (cos, -sin, -cos),
+                    };
+                    rest[0].set_chain(&earlier[a], derivatives, index);
+                }
+                _ => set_node(&step.op, (x, phi), earlier, index, &mut rest[0]),
+            }
         }
         buffer
+    }
+}
+
+/// The sine and cosine of the last angle asked for, kept for the next request of the same
+/// angle (the same bits as `f64::sin` and `f64::cos`: [`Unary::at`] computes them so).
+#[derive(Default)]
+struct SinCos {
+    last: Option<(u64, f64, f64)>,
+}
+
+impl SinCos {
+    /// `(sin(v), cos(v))`.
+    fn at(&mut self, v: f64) -> (f64, f64) {
+        match self.last {
+            Some((bits, sin, cos)) if bits == v.to_bits() => (sin, cos),
+            _ => {
+                let (sin, cos) = (v.sin(), v.cos());
+                self.last = Some((v.to_bits(), sin, cos));
+                (sin, cos)
+            }
+        }
     }
 }
 

@@ -35,7 +35,9 @@
 //!   splits the problem into parts that share no term, so each part (a run of readings between
 //!   such links) has its own inner optimization, and a part whose readings and links an
 //!   earlier topology already had keeps that earlier result: relaxing one link solves only
-//!   the part that holds it (`PartSolver`).
+//!   the part that holds it (`PartSolver`). The parts that the boundary refinement's coming
+//!   moves need (and the first topology's parts) are solved ahead, as many at once as there
+//!   are threads; the results are those of solving them one by one.
 
 use std::collections::HashMap;
 use std::collections::hash_map::Entry;

@@ -712,6 +712,26 @@ impl Problem<'_> {
         }
     }
 
+    /// Window `w`'s priorlet and its tape nodes with their derivatives at `x`; `None` when
+    /// the priorlet states nothing.
+    fn window_derivatives<'n, const N: usize>(
+        &self,
+        x: &[f64],
+        w: usize,
+        nodes: &'n mut SparseNodes<N>,
+    ) -> Option<(&Priorlet, &'n [Sparse<N>])> {
+        let (start, topology) = self.windows[w];
+        let priorlet = self.prior.priorlet(topology);
+        if priorlet.is_empty() {
+            return None;
+        }
+        let (local, phi) = (self.local(x, start), self.local_phi(start));
+        let nodes = self
+            .plan
+            .derivatives(self.prior, (w, topology), local, phi, nodes);
+        Some((priorlet, nodes))
+    }
+
     /// The split terms of the windows of chunk number `c`, `chunk`, at `x`.
     fn chunk_terms<const N: usize>(
         &self,
@@ -720,26 +740,18 @@ impl Problem<'_> {
         chunk: &[(usize, Topology)],
     ) -> Vec<SplitTerms<N>> {
         let mut nodes = SparseNodes::<N>::new();
-        let mut out = Vec::with_capacity(chunk.len());
-        for (i, &(start, topology)) in chunk.iter().enumerate() {
-            let priorlet = self.prior.priorlet(topology);
-            if priorlet.is_empty() {
-                continue;
-            }
-            let w = c * WINDOW_CHUNK + i;
-            let (local, phi) = (self.local(x, start), self.local_phi(start));
-            let buffer = self
-                .plan
-                .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
-            let (energy, penalty, violation) = split_window_terms(priorlet, buffer);
-            out.push(SplitTerms {
-                window: w,
-                energy,
-                penalty,
-                violation,
-            });
-        }
-        out
+        (c * WINDOW_CHUNK..c * WINDOW_CHUNK + chunk.len())
+            .filter_map(|w| {
+                let (priorlet, buffer) = self.window_derivatives(x, w, &mut nodes)?;
+                let (energy, penalty, violation) = split_window_terms(priorlet, buffer);
+                Some(SplitTerms {
+                    window: w,
+                    energy,
+                    penalty,
+                    violation,
+                })
+            })
+            .collect()
     }
 
     fn window_sums_of<const N: usize>(&self, x: &[f64]) -> WindowSums {
@@ -841,16 +853,11 @@ impl Problem<'_> {
             .map(|(c, (chunk, chunk_bases))| {
                 let mut nodes = SparseNodes::<N>::new();
                 let mut out = Vec::with_capacity(chunk.len());
-                for (i, &(start, topology)) in chunk.iter().enumerate() {
-                    let priorlet = self.prior.priorlet(topology);
-                    if priorlet.is_empty() {
-                        continue;
-                    }
+                for (i, &(start, _)) in chunk.iter().enumerate() {
                     let w = c * WINDOW_CHUNK + i;
-                    let (local, phi) = (self.local(x, start), self.local_phi(start));
-                    let buffer =
-                        self.plan
-                            .derivatives(self.prior, (w, topology), local, phi, &mut nodes);
+                    let Some((priorlet, buffer)) = self.window_derivatives(x, w, &mut nodes) else {
+                        continue;
+                    };
                     let total = window_terms(priorlet, buffer, lambda);
                     let stored = &mut chunk_bases[i * N * N..(i + 1) * N * N];
                     out.push((start, convexify_stored(&total.h, k, stored)));
@@ -2464,22 +2471,21 @@ mod tests {
         assert_eq!(ahead.solved.len(), 2, "as many parts as threads");
         assert_eq!(ahead.inner_optimizations, 0, "none used yet");
         let mut one_by_one = PartSolver::new(&prior, &input, &params);
-        let bits = |inner: &Inner| inner.x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-        let first = pool
-            .install(|| ahead.solve(&members, &links))
-            .expect("solved");
-        let expected = one_by_one.solve(&members, &links).expect("solved");
-        assert_eq!(bits(&first), bits(&expected));
-        assert_eq!(first.link_penalties, expected.link_penalties);
-        assert_eq!(ahead.solved.len(), 2, "found, not solved again");
-        assert_eq!(ahead.inner_optimizations, 2);
-        assert_eq!(one_by_one.inner_optimizations, 2);
-        let second = pool
-            .install(|| ahead.solve(&members, &other))
-            .expect("solved");
-        let expected = one_by_one.solve(&members, &other).expect("solved");
-        assert_eq!(bits(&second), bits(&expected));
-        assert_eq!(ahead.inner_optimizations, one_by_one.inner_optimizations);
+        // `links` then `other`: each the same bits as solved one by one.
+        for (topology, counted) in [(&links, 2), (&other, 4)] {
+            let got = pool
+                .install(|| ahead.solve(&members, topology))
+                .expect("solved");
+            let expected = one_by_one.solve(&members, topology).expect("solved");
+            let bits = |inner: &Inner| inner.x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&got), bits(&expected));
+            assert_eq!(got.link_penalties, expected.link_penalties);
+            assert_eq!(ahead.inner_optimizations, counted);
+            assert_eq!(one_by_one.inner_optimizations, counted);
+            if counted == 2 {
+                assert_eq!(ahead.solved.len(), 2, "found, not solved again");
+            }
+        }
     }
 
     /// 150 readings of a room corner, a gap and a wall, with a little noise, and the

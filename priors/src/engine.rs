@@ -439,6 +439,17 @@ struct Evaluation {
     band: Band,
 }
 
+impl Evaluation {
+    /// The objective's rate of change along `direction` (`gradient . direction`).
+    fn slope(&self, direction: &[f64]) -> f64 {
+        self.gradient
+            .iter()
+            .zip(direction)
+            .map(|(g, d)| g * d)
+            .sum()
+    }
+}
+
 /// A symmetric banded matrix (lower band stored).
 struct Band {
     n: usize,
@@ -1433,12 +1444,7 @@ fn newton(
         let curvature = duals.curvature(x, bounds);
         let (eval, direction) =
             newton_direction(problem, (x, sums), (lambda, mu), &curvature, bases)?;
-        let slope: f64 = eval
-            .gradient
-            .iter()
-            .zip(&direction)
-            .map(|(g, d)| g * d)
-            .sum();
+        let slope = eval.slope(&direction);
         if -slope < 1e-12 * (1.0 + eval.value.abs()) {
             return Ok(step_count);
         }
@@ -2658,12 +2664,7 @@ mod tests {
             assert_eq!(eval.band.data, used.data, "lambda {lambda}");
             assert_eq!(eval.gradient, exact.gradient, "lambda {lambda}");
             assert_eq!(Some(direction.clone()), used.solve(&rhs, 0.0));
-            let slope: f64 = eval
-                .gradient
-                .iter()
-                .zip(&direction)
-                .map(|(g, d)| g * d)
-                .sum();
+            let slope = eval.slope(&direction);
             assert!(slope < 0.0, "lambda {lambda}: slope {slope}");
         }
         assert_eq!(factored, [1, 1], "one exact and one convexified step");

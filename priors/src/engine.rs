@@ -668,15 +668,16 @@ impl Problem<'_> {
     /// Value, gradient and banded Hessian of the objective at `x`, from the windows' `sums`
     /// there (exact Hessians): the data term, the barrier with the Newton model's
     /// `barrier_curvature`, and the windows' energies plus `lambda` times their penalties.
+    /// `known`: the value, when the caller has it ([`Problem::objective`] at `x` with these
+    /// `sums`, `lambda` and `mu`, as the line search computes it for the point it accepts).
     fn assemble(
         &self,
-        x: &[f64],
-        sums: &WindowSums,
+        (x, sums, known): (&[f64], &WindowSums, Option<f64>),
         (lambda, mu): (f64, f64),
         barrier_curvature: &[f64],
     ) -> Result<Evaluation> {
-        let value = self
-            .objective(x, (sums.energy.value, sums.penalty.value), lambda, mu)
+        let value = known
+            .or_else(|| self.objective(x, (sums.energy.value, sums.penalty.value), lambda, mu))
             .filter(|_| sums.energy.gradient.iter().all(|g| g.is_finite()))
             .filter(|_| sums.penalty.gradient.iter().all(|g| g.is_finite()))
             .ok_or_else(|| {
@@ -751,18 +752,19 @@ impl Problem<'_> {
         chunk: &[(usize, Topology)],
     ) -> Vec<SplitTerms<N>> {
         let mut nodes = SparseNodes::<N>::new();
-        (c * WINDOW_CHUNK..c * WINDOW_CHUNK + chunk.len())
-            .filter_map(|w| {
-                let (priorlet, buffer) = self.window_derivatives(x, w, &mut nodes)?;
+        let mut out = Vec::with_capacity(chunk.len());
+        for w in c * WINDOW_CHUNK..c * WINDOW_CHUNK + chunk.len() {
+            if let Some((priorlet, buffer)) = self.window_derivatives(x, w, &mut nodes) {
                 let (energy, penalty, violation) = split_window_terms(priorlet, buffer);
-                Some(SplitTerms {
+                out.push(SplitTerms {
                     window: w,
                     energy,
                     penalty,
                     violation,
-                })
-            })
-            .collect()
+                });
+            }
+        }
+        out
     }
 
     fn window_sums_of<const N: usize>(&self, x: &[f64]) -> WindowSums {
@@ -1406,12 +1408,13 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
 /// of the identity added.
 fn newton_direction(
     problem: &Problem,
-    (x, sums): (&[f64], &WindowSums),
+    point: (&[f64], &WindowSums, Option<f64>),
     (lambda, mu): (f64, f64),
     barrier_curvature: &[f64],
     bases: &mut Vec<f64>,
 ) -> Result<(Evaluation, Vec<f64>)> {
-    let mut eval = problem.assemble(x, sums, (lambda, mu), barrier_curvature)?;
+    let x = point.0;
+    let mut eval = problem.assemble(point, (lambda, mu), barrier_curvature)?;
     let rhs: Vec<f64> = eval.gradient.iter().map(|g| -g).collect();
     if let Some(direction) = eval.band.solve(&rhs, 0.0) {
         return Ok((eval, direction));
@@ -1440,10 +1443,12 @@ fn newton(
     (bases, duals): (&mut Vec<f64>, &mut BoundDuals),
 ) -> Result<usize> {
     let bounds = (problem.lo.as_slice(), problem.hi.as_slice());
+    // The objective at `x`, once the line search has computed it.
+    let mut known = None;
     for step_count in 0..params.max_newton_steps {
         let curvature = duals.curvature(x, bounds);
         let (eval, direction) =
-            newton_direction(problem, (x, sums), (lambda, mu), &curvature, bases)?;
+            newton_direction(problem, (x, sums, known), (lambda, mu), &curvature, bases)?;
         let slope = eval.slope(&direction);
         if -slope < 1e-12 * (1.0 + eval.value.abs()) {
             return Ok(step_count);
@@ -1473,6 +1478,7 @@ fn newton(
                 && v <= eval.value + 1e-4 * step * slope
             {
                 accepted = true;
+                known = Some(v);
                 break;
             }
             // Rejected: the first trial's terms are of no further use.
@@ -2640,14 +2646,14 @@ mod tests {
             let curvature = BoundDuals::new(&start, bounds, mu).curvature(&start, bounds);
             let (eval, direction) = newton_direction(
                 &problem,
-                (&start, &sums),
+                (&start, &sums, None),
                 (lambda, mu),
                 &curvature,
                 &mut bases,
             )
             .expect("a step");
             let exact = problem
-                .assemble(&start, &sums, (lambda, mu), &curvature)
+                .assemble((&start, &sums, None), (lambda, mu), &curvature)
                 .expect("finite");
             let convexified = problem.convexified_band(&start, lambda, &curvature, &mut Vec::new());
             let rhs: Vec<f64> = exact.gradient.iter().map(|g| -g).collect();
@@ -2685,7 +2691,7 @@ mod tests {
         let model = |x: &[f64]| {
             let sums = problem.window_sums(x);
             problem
-                .assemble(x, &sums, (lambda, mu), &curvature(x))
+                .assemble((x, &sums, None), (lambda, mu), &curvature(x))
                 .expect("finite")
         };
         let at_x = model(&x);

@@ -601,34 +601,40 @@ impl Problem<'_> {
         total.is_finite().then_some(total)
     }
 
-    /// The data term, energies, penalties and barrier at `x` (value only). `None` outside
-    /// the bounds or when not finite.
-    fn value(&self, x: &[f64], lambda: f64, mu: f64, buffer: &mut Vec<f64>) -> Option<f64> {
-        let (mut energy, mut penalty) = (0.0, 0.0);
-        if !self.parallel {
-            for w in 0..self.windows.len() {
-                let (e, p) = self.window_value_terms(x, w, buffer);
-                energy += e;
-                penalty += p;
-            }
+    /// `terms` of each run of [`WINDOW_CHUNK`] windows (their indices), in window order: in
+    /// parallel when the problem is ([`Problem::parallel`]), on the calling thread otherwise.
+    /// One list per chunk (an indexed collect: no list grown and moved as it goes).
+    fn per_chunk<T: Send>(
+        &self,
+        terms: impl Fn(std::ops::Range<usize>) -> Vec<T> + Sync,
+    ) -> Vec<Vec<T>> {
+        let n = self.windows.len();
+        let chunk = |c: usize| c * WINDOW_CHUNK..((c + 1) * WINDOW_CHUNK).min(n);
+        let chunks = n.div_ceil(WINDOW_CHUNK);
+        if self.parallel {
+            (0..chunks)
+                .into_par_iter()
+                .map(|c| terms(chunk(c)))
+                .collect()
         } else {
-            // The windows' terms in parallel, added in window order as the loop above adds
-            // them (the same sums bit for bit).
-            let terms: Vec<Vec<(f64, f64)>> = self
-                .windows
-                .par_chunks(WINDOW_CHUNK)
-                .enumerate()
-                .map(|(c, chunk)| {
-                    let mut buffer = Vec::new();
-                    (c * WINDOW_CHUNK..c * WINDOW_CHUNK + chunk.len())
-                        .map(|w| self.window_value_terms(x, w, &mut buffer))
-                        .collect()
-                })
-                .collect();
-            for (e, p) in terms.into_iter().flatten() {
-                energy += e;
-                penalty += p;
-            }
+            (0..chunks).map(|c| terms(chunk(c))).collect()
+        }
+    }
+
+    /// The data term, energies, penalties and barrier at `x` (value only). `None` outside
+    /// the bounds or when not finite. The windows' terms are added in window order, for any
+    /// number of threads.
+    fn value(&self, x: &[f64], lambda: f64, mu: f64) -> Option<f64> {
+        let terms = self.per_chunk(|windows| {
+            let mut buffer = Vec::new();
+            windows
+                .map(|w| self.window_value_terms(x, w, &mut buffer))
+                .collect()
+        });
+        let (mut energy, mut penalty) = (0.0, 0.0);
+        for (e, p) in terms.into_iter().flatten() {
+            energy += e;
+            penalty += p;
         }
         self.objective(x, (energy, penalty), lambda, mu)
     }
@@ -651,13 +657,18 @@ impl Problem<'_> {
         total
     }
 
+    /// The data term's weight of reading `j`'s normal: its initial value's inverse variance.
+    fn normal_weight(&self, j: usize) -> f64 {
+        1.0 / (self.alpha_sigma[j] * self.alpha_sigma[j])
+    }
+
     /// The data term's and the barrier's curvature (`barrier_curvature`, per coordinate) on
     /// the diagonal of a band with the windows' width.
     fn data_band(&self, barrier_curvature: &[f64]) -> Band {
         let mut band = Band::new(self.dim(), 2 * self.prior.order - 1);
         for j in 0..self.rho.len() {
             *band.at(2 * j, 2 * j) += self.w_rho[j];
-            *band.at(2 * j + 1, 2 * j + 1) += 1.0 / (self.alpha_sigma[j] * self.alpha_sigma[j]);
+            *band.at(2 * j + 1, 2 * j + 1) += self.normal_weight(j);
         }
         for (i, &c) in barrier_curvature.iter().enumerate() {
             *band.at(i, i) += c;
@@ -687,9 +698,8 @@ impl Problem<'_> {
             })?;
         let mut gradient = vec![0.0; self.dim()];
         for j in 0..self.rho.len() {
-            let wa = 1.0 / (self.alpha_sigma[j] * self.alpha_sigma[j]);
             gradient[2 * j] = self.w_rho[j] * (x[2 * j] - self.rho[j]);
-            gradient[2 * j + 1] = wa * (x[2 * j + 1] - self.alpha0[j]);
+            gradient[2 * j + 1] = self.normal_weight(j) * (x[2 * j + 1] - self.alpha0[j]);
         }
         for (i, g) in gradient.iter_mut().enumerate() {
             let (a, b) = (x[i] - self.lo[i], self.hi[i] - x[i]);
@@ -744,16 +754,15 @@ impl Problem<'_> {
         Some((priorlet, nodes))
     }
 
-    /// The split terms of the windows of chunk number `c`, `chunk`, at `x`.
+    /// The split terms of `windows` at `x`.
     fn chunk_terms<const N: usize>(
         &self,
         x: &[f64],
-        c: usize,
-        chunk: &[(usize, Topology)],
+        windows: std::ops::Range<usize>,
     ) -> Vec<SplitTerms<N>> {
         let mut nodes = SparseNodes::<N>::new();
-        let mut out = Vec::with_capacity(chunk.len());
-        for w in c * WINDOW_CHUNK..c * WINDOW_CHUNK + chunk.len() {
+        let mut out = Vec::with_capacity(windows.len());
+        for w in windows {
             if let Some((priorlet, buffer)) = self.window_derivatives(x, w, &mut nodes) {
                 let (energy, penalty, violation) = split_window_terms(priorlet, buffer);
                 out.push(SplitTerms {
@@ -769,18 +778,7 @@ impl Problem<'_> {
 
     fn window_sums_of<const N: usize>(&self, x: &[f64]) -> WindowSums {
         let k = 2 * self.prior.order;
-        // One list per chunk (an indexed collect: no list grown and moved as it goes).
-        let terms: Vec<Vec<SplitTerms<N>>> = if !self.parallel {
-            let chunks = self.windows.chunks(WINDOW_CHUNK).enumerate();
-            chunks
-                .map(|(c, chunk)| self.chunk_terms(x, c, chunk))
-                .collect()
-        } else {
-            let chunks = self.windows.par_chunks(WINDOW_CHUNK).enumerate();
-            chunks
-                .map(|(c, chunk)| self.chunk_terms(x, c, chunk))
-                .collect()
-        };
+        let terms = self.per_chunk(|windows| self.chunk_terms::<N>(x, windows));
         let (n, width) = (self.dim(), 2 * self.prior.order - 1);
         let sum = || WindowSum {
             value: 0.0,
@@ -1351,7 +1349,6 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
         .collect();
     let mut lambda = params.penalty_start;
     let mut mu = params.barrier_start;
-    let mut buffer = Vec::new();
     let mut history = Vec::new();
     let mut polish = 0;
     let mut bases = Vec::new();
@@ -1363,7 +1360,6 @@ pub(crate) fn inner_optimization(problem: &Problem, params: &Params) -> Result<I
             (&mut x, &mut sums),
             (lambda, mu),
             params,
-            &mut buffer,
             (&mut bases, &mut duals),
         )?;
         let violations = &sums.violations;
@@ -1439,7 +1435,6 @@ fn newton(
     (x, sums): (&mut Vec<f64>, &mut WindowSums),
     (lambda, mu): (f64, f64),
     params: &Params,
-    buffer: &mut Vec<f64>,
     (bases, duals): (&mut Vec<f64>, &mut BoundDuals),
 ) -> Result<usize> {
     let bounds = (problem.lo.as_slice(), problem.hi.as_slice());
@@ -1472,7 +1467,7 @@ fn newton(
                 at_first = Some(at_trial);
                 problem.objective(&trial, terms, lambda, mu)
             } else {
-                problem.value(&trial, lambda, mu, buffer)
+                problem.value(&trial, lambda, mu)
             };
             if let Some(v) = value
                 && v <= eval.value + 1e-4 * step * slope
@@ -2566,7 +2561,7 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .expect("thread pool");
-            let value = pool.install(|| problem.value(&x, lambda, mu, &mut Vec::new()));
+            let value = pool.install(|| problem.value(&x, lambda, mu));
             assert_eq!(value.map(f64::to_bits), Some(serial.to_bits()), "{threads}");
         }
     }
@@ -2695,11 +2690,7 @@ mod tests {
                 .expect("finite")
         };
         let at_x = model(&x);
-        let value = |x: &[f64]| {
-            problem
-                .value(x, lambda, mu, &mut Vec::new())
-                .expect("inside")
-        };
+        let value = |x: &[f64]| problem.value(x, lambda, mu).expect("inside");
         assert_eq!(at_x.value.to_bits(), value(&x).to_bits());
         let h = 1e-6;
         let moved = |i: usize, d: f64| {

@@ -868,6 +868,15 @@ mod tests {
 
     /// A CARMEN log of a robot in a 6 m x 4 m room, scanning from a few places.
     fn room_log(dir: &std::path::Path) -> std::path::PathBuf {
+        room_log_with_odometry(dir, None)
+    }
+
+    /// [`room_log`], with `ODOM` lines before the scans when `odometry_frame` is given: the
+    /// odometry's poses are that frame composed with the scans' (reference) poses.
+    fn room_log_with_odometry(
+        dir: &std::path::Path,
+        odometry_frame: Option<Pose2>,
+    ) -> std::path::PathBuf {
         use std::fmt::Write as _;
         let walls = [
             (Vector2::new(0.0, 0.0), Vector2::new(6.0, 0.0)),
@@ -893,10 +902,24 @@ mod tests {
                     .fold(f64::INFINITY, f64::min);
                 ranges.push(format!("{range:.4}"));
             }
+            let odometry = odometry_frame.map_or(pose, |frame| frame.compose(&pose));
+            // Twice before the first scan: a motion (of zero) comes before the first
+            // reference pose, so the run starts at the origin, not on the reference.
+            let repeats = if k == 0 { 2 } else { 1 };
+            for r in 0..repeats * usize::from(odometry_frame.is_some()) {
+                let _ = writeln!(
+                    text,
+                    "ODOM {} {} {} 0 0 0 {k}.{r} host {k}.{r}",
+                    odometry.x, odometry.y, odometry.theta
+                );
+            }
             let _ = writeln!(
                 text,
-                "FLASER 361 {} {x} 2.0 {t} {x} 2.0 {t} {k}.0 host {k}.0",
+                "FLASER 361 {} {x} 2.0 {t} {} {} {} {k}.5 host {k}.5",
                 ranges.join(" "),
+                odometry.x,
+                odometry.y,
+                odometry.theta,
                 t = pose.theta
             );
         }
@@ -938,6 +961,35 @@ mod tests {
         for file in ["map.svg", "map.png", "map-walls.png"] {
             assert!(stage.join(file).exists(), "{file} missing");
         }
+    }
+
+    /// A log whose reference poses lie in another frame than its odometry (a Radish
+    /// corrected log's, say) gets the NEES against them from the path's start: exact
+    /// increments score (nearly) 0, where comparing the frames as they are would not.
+    #[test]
+    fn reference_poses_in_another_frame_give_the_nees_from_the_start() {
+        let dir = temp_dir("reference-nees");
+        let log = room_log_with_odometry(dir.path(), Some(Pose2::new(-3.0, 8.0, 2.2)));
+        let out = dir.path().join("out");
+        let text = format!(
+            "[data]\nspec = \"carmen:{}\"\n[estimator]\ntype = \"dead-reckoning\"\n\
+             [output]\ndir = \"{}\"\nplots = false\n",
+            log.display(),
+            out.display()
+        );
+        let config = Config::from_toml(&text, "test").unwrap();
+        run_config(&config, true).unwrap();
+        let metrics: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap())
+                .unwrap();
+        assert!(
+            metrics["nees"].is_null(),
+            "no true poses: {}",
+            metrics["nees"]
+        );
+        let nees = &metrics["nees_reference"];
+        assert!(nees["count"].as_u64().unwrap() >= 3, "{nees}");
+        assert!(nees["mean_per_dof"].as_f64().unwrap() < 1e-12, "{nees}");
     }
 
     #[test]

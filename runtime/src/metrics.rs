@@ -13,9 +13,10 @@ use crate::config::Config;
 use crate::error::Result;
 use crate::eval::{
     ChiSquareSummary, CloseLandmarks, ErrorStats, MapError, MapQuality, REVISIT_GAP_M,
-    REVISIT_RADIUS_M, RevisitConsistency, TrajectoryErrors, chi_square_summary, close_landmarks,
-    confirmed_wall_segments, feature_counts, map_error_against_landmarks, map_error_against_truth,
-    map_quality, pose_nees, revisit_consistency, singular_steps,
+    REVISIT_RADIUS_M, RevisitConsistency, TrajectoryErrors, anchored_pose_nees, chi_square_summary,
+    close_landmarks, confirmed_wall_segments, feature_counts, map_error_against_landmarks,
+    map_error_against_truth, map_quality, pose_nees, reference_poses, revisit_consistency,
+    singular_steps,
 };
 use crate::frontend::FrontendCounts;
 use crate::health::Divergence;
@@ -82,6 +83,12 @@ pub struct RunMetrics {
     /// Steps with a true pose left out of the NEES because their covariance is singular (a
     /// pose known exactly; a collapsed particle cloud).
     pub nees_singular_steps: usize,
+    /// Robot pose NEES (3 dof) against the data's reference poses (another system's
+    /// estimate, such as a corrected log's poses), where the data has no true poses: both
+    /// paths expressed from their first common pose ([`crate::eval::anchored_pose_nees`]).
+    /// The reference's own error counts as the estimate's, so a consistent filter scores
+    /// somewhat above 1 per degree of freedom; far above it, the filter is overconfident.
+    pub nees_reference: Option<ChiSquareSummary>,
     /// NIS of every paired observation (`null` with the reason in `unavailable` when the
     /// estimator reported none).
     pub nis: Option<ChiSquareSummary>,
@@ -195,6 +202,7 @@ impl RunMetrics {
             nees: consistency.nees,
             nees_covariance: estimator.covariance_source(),
             nees_singular_steps: consistency.singular_steps,
+            nees_reference: consistency.nees_reference,
             nis: consistency.nis,
             map_quality: Self::map_quality(output),
             revisit_consistency: Self::revisits(output),
@@ -317,6 +325,7 @@ pub fn compute_run(
 struct Consistency {
     nees: Option<ChiSquareSummary>,
     singular_steps: usize,
+    nees_reference: Option<ChiSquareSummary>,
     nis: Option<ChiSquareSummary>,
 }
 
@@ -340,6 +349,14 @@ impl Consistency {
                 ),
             );
         }
+        let nees_reference: Vec<(f64, usize)> = if truth.is_empty() {
+            anchored_pose_nees(&record.estimates, &reference_poses(&record.truth))
+                .into_iter()
+                .map(|(_, n)| (n, 3))
+                .collect()
+        } else {
+            Vec::new()
+        };
         let nis = record.nis.summary();
         let updates = record.updates.associated + record.updates.new_features;
         if nis.count == 0 && updates > 0 {
@@ -358,6 +375,11 @@ impl Consistency {
                 Some(chi_square_summary(&nees)?)
             },
             singular_steps: nees_singular_steps,
+            nees_reference: if nees_reference.is_empty() {
+                None
+            } else {
+                Some(chi_square_summary(&nees_reference)?)
+            },
             nis: (nis.count > 0).then_some(nis),
         })
     }

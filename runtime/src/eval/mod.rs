@@ -25,8 +25,8 @@ use crate::error::Result;
 
 pub use close::{CloseLandmarks, close_landmarks};
 pub use consistency::{
-    ChiSquareAccumulator, ChiSquareSummary, Record, chi_square_summary, mean_band_95, pose_nees,
-    singular_steps,
+    ChiSquareAccumulator, ChiSquareSummary, Record, anchored_pose_nees, chi_square_summary,
+    mean_band_95, pose_nees, singular_steps,
 };
 pub use map::{
     MapError, anchor_covariance, confirmed, coordinate_covariance, feature_counts,
@@ -126,9 +126,19 @@ pub fn stamped(poses: impl IntoIterator<Item = (f64, Pose2)>) -> Vec<StampedPose
 
 /// The independent true poses among `truth`, by the bits of their time.
 pub fn true_poses(truth: &[(f64, Pose2, TruthKind)]) -> BTreeMap<u64, Pose2> {
+    poses_of_kind(truth, TruthKind::True)
+}
+
+/// The reference poses (another system's estimate, [`TruthKind::Reference`]) of a run by the
+/// bits of their times.
+pub fn reference_poses(truth: &[(f64, Pose2, TruthKind)]) -> BTreeMap<u64, Pose2> {
+    poses_of_kind(truth, TruthKind::Reference)
+}
+
+fn poses_of_kind(truth: &[(f64, Pose2, TruthKind)], kind: TruthKind) -> BTreeMap<u64, Pose2> {
     truth
         .iter()
-        .filter(|(_, _, kind)| *kind == TruthKind::True)
+        .filter(|(_, _, k)| *k == kind)
         .map(|(t, p, _)| (t.to_bits(), *p))
         .collect()
 }

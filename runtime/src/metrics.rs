@@ -369,19 +369,20 @@ impl Consistency {
             );
         }
         Ok(Consistency {
-            nees: if nees.is_empty() {
-                None
-            } else {
-                Some(chi_square_summary(&nees)?)
-            },
+            nees: summary_of(&nees)?,
             singular_steps: nees_singular_steps,
-            nees_reference: if nees_reference.is_empty() {
-                None
-            } else {
-                Some(chi_square_summary(&nees_reference)?)
-            },
+            nees_reference: summary_of(&nees_reference)?,
             nis: (nis.count > 0).then_some(nis),
         })
+    }
+}
+
+/// The summary of `(value, dof)` pairs, `None` for none.
+fn summary_of(values: &[(f64, usize)]) -> Result<Option<ChiSquareSummary>> {
+    if values.is_empty() {
+        Ok(None)
+    } else {
+        chi_square_summary(values).map(Some)
     }
 }
 

@@ -236,9 +236,8 @@ pub fn singular_steps(estimates: &[Record], truth: &BTreeMap<u64, Pose2>) -> usi
 mod tests {
     use super::*;
 
-    /// A reference path in another frame (turned and moved) gives the NEES of the same path
-    /// in the estimate's frame, and an estimate off across its heading by one deviation
-    /// scores 1 per dimension whatever the frames.
+    /// A reference path in another frame (turned and moved) gives, at every time, the NEES
+    /// against the same path in the estimate's frame; with no common time there is none.
     #[test]
     fn the_anchored_nees_does_not_depend_on_the_reference_frame() {
         let truth: Vec<(f64, Pose2)> = (0..20)

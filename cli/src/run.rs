@@ -388,7 +388,10 @@ fn summary_line(output: &RunOutput, metrics: &RunMetrics, dir: &Path) -> String 
     let nees = match &metrics.nees {
         Some(nees) if metrics.nees_covariance == "gaussian" => nees.describe(),
         Some(nees) => format!("{} (of the {})", nees.describe(), metrics.nees_covariance),
-        None => "n/a".into(),
+        None => match &metrics.nees_reference {
+            Some(nees) => format!("{} against the reference poses", nees.describe()),
+            None => "n/a".into(),
+        },
     };
     let mut line = format!(
         "{}: {} steps in {:.1} s ({:.3} ms/step); ATE {} m ({}); map error {} m; pose NEES per \
@@ -978,7 +981,7 @@ mod tests {
             out.display()
         );
         let config = Config::from_toml(&text, "test").unwrap();
-        run_config(&config, true).unwrap();
+        let summary = run_config(&config, true).unwrap();
         let metrics: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap())
                 .unwrap();
@@ -990,6 +993,10 @@ mod tests {
         let nees = &metrics["nees_reference"];
         assert!(nees["count"].as_u64().unwrap() >= 3, "{nees}");
         assert!(nees["mean_per_dof"].as_f64().unwrap() < 1e-12, "{nees}");
+        assert!(
+            summary.contains("pose NEES per dof 0") && summary.contains("against the reference"),
+            "{summary}"
+        );
     }
 
     #[test]

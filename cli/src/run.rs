@@ -908,8 +908,12 @@ mod tests {
             let odometry = odometry_frame.map_or(pose, |frame| frame.compose(&pose));
             // Twice before the first scan: a motion (of zero) comes before the first
             // reference pose, so the run starts at the origin, not on the reference.
-            let repeats = if k == 0 { 2 } else { 1 };
-            for r in 0..repeats * usize::from(odometry_frame.is_some()) {
+            let repeats = match odometry_frame {
+                None => 0,
+                Some(_) if k == 0 => 2,
+                Some(_) => 1,
+            };
+            for r in 0..repeats {
                 let _ = writeln!(
                     text,
                     "ODOM {} {} {} 0 0 0 {k}.{r} host {k}.{r}",

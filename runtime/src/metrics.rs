@@ -146,6 +146,9 @@ pub struct LaserOdometryReportView {
     pub matched: usize,
     /// Scans whose match was refused (their odometry was kept).
     pub refused: usize,
+    /// Ground-truth or reference poses between scans, left out of the evaluation (the
+    /// estimate moves only at scans).
+    pub truth_between_scans: usize,
 }
 
 impl From<&LaserOdometryReport> for LaserOdometryReportView {
@@ -153,6 +156,7 @@ impl From<&LaserOdometryReport> for LaserOdometryReportView {
         LaserOdometryReportView {
             matched: report.matched,
             refused: report.refused,
+            truth_between_scans: report.truth_between_scans,
         }
     }
 }

@@ -196,6 +196,10 @@ pub struct LaserOdometryReport {
     pub matched: usize,
     /// Scans whose match was refused; their odometry was kept.
     pub refused: usize,
+    /// Ground-truth or reference poses left out because they fall between two scans: the
+    /// estimate there still lacks the motion held back for the next match, so comparing them
+    /// would count that motion as error.
+    pub truth_between_scans: usize,
 }
 
 /// `(-v_y, v_x)`.
@@ -664,6 +668,15 @@ fn compound(motions: &[TimedEvent]) -> Result<(Pose2, Matrix3<f64>)> {
 /// motion pending before one of them is written unchanged and the next scan starts a new chain.
 /// Scans from mounts other than the previous scan's (a second laser) also start a new chain.
 ///
+/// The estimate then moves only at scans, so ground-truth and reference poses between two
+/// scans are left out ([`LaserOdometryReport::truth_between_scans`] counts them): compared with
+/// an estimate that still lacks the motion held back for the next match, they would count
+/// that motion as error (on the built-in world, where the truth comes at every step and a scan
+/// at every other, `configs/carmen-walls.toml` with seed 1 scored an ATE of 0.049 m and a pose
+/// NEES of 3.2 per degree of freedom with them, 0.035 m and 0.13 without). Truth at a scan's
+/// own time follows the scan's increment; a reference that is never at a scan's time (a bag's
+/// reference topic on its own clock) gives no ATE with laser odometry.
+///
 /// This is [`laser_odometry_stream`] collected.
 pub fn laser_odometry(
     dataset: Dataset,
@@ -680,6 +693,7 @@ pub fn laser_odometry(
 pub struct LaserOdometryCounts {
     matched: Arc<AtomicUsize>,
     refused: Arc<AtomicUsize>,
+    truth_between_scans: Arc<AtomicUsize>,
 }
 
 impl LaserOdometryCounts {
@@ -688,6 +702,7 @@ impl LaserOdometryCounts {
         LaserOdometryReport {
             matched: self.matched.load(Ordering::Relaxed),
             refused: self.refused.load(Ordering::Relaxed),
+            truth_between_scans: self.truth_between_scans.load(Ordering::Relaxed),
         }
     }
 }
@@ -734,7 +749,8 @@ struct Matcher {
     input: EventStream,
     params: LaserOdometryParams,
     counts: LaserOdometryCounts,
-    /// Motion events since the previous scan.
+    /// Motion events since the previous scan, and the ground truth among them (held with the
+    /// motion: the estimate reaches their time only when the motion goes out).
     pending: Vec<TimedEvent>,
     /// The chain of matched scans since the last break (none before the first scan).
     chain: Option<Chain>,
@@ -849,6 +865,9 @@ impl Step for Matcher {
                 }
                 out.push_back(timed);
             }
+            // Held behind the motion (the estimate at its time lacks that motion until the
+            // next scan's match); passed on at once when no motion is held.
+            Event::GroundTruth { .. } if holds_motion(&self.pending) => self.pending.push(timed),
             Event::GroundTruth { .. } => out.push_back(timed),
         }
         Ok(true)
@@ -869,7 +888,7 @@ impl Matcher {
         let chain = match self.chain.as_mut() {
             Some(chain)
                 if chain.robot_from_sensor.to_vector() == mount.to_vector()
-                    && !self.pending.is_empty() =>
+                    && holds_motion(&self.pending) =>
             {
                 chain
             }
@@ -882,11 +901,11 @@ impl Matcher {
         let (odometry, odometry_covariance) = interval_odometry(&self.pending, params)?;
         match match_to_local_map(chain, points, &odometry, &odometry_covariance, params)? {
             Some((increment, chain_from_current)) => {
-                self.pending.clear();
                 out.push_back(TimedEvent {
                     time,
                     event: Event::Motion(Box::new(increment)),
                 });
+                release_truth_at(&mut self.pending, &self.counts, time, out);
                 self.counts.matched.fetch_add(1, Ordering::Relaxed);
                 chain.chain_from_previous = chain_from_current;
                 if chain.is_key(&chain_from_current, params) {
@@ -895,7 +914,6 @@ impl Matcher {
             }
             None => {
                 if params.interval_noise.is_some() {
-                    self.pending.clear();
                     out.push_back(TimedEvent {
                         time,
                         event: Event::Motion(Box::new(PoseIncrement::new(
@@ -903,6 +921,7 @@ impl Matcher {
                             odometry_covariance,
                         )?)),
                     });
+                    release_truth_at(&mut self.pending, &self.counts, time, out);
                 } else {
                     out.extend(self.pending.drain(..));
                 }
@@ -912,6 +931,34 @@ impl Matcher {
             }
         }
         Ok(())
+    }
+}
+
+/// Whether motion is held back for the next scan's match.
+fn holds_motion(pending: &[TimedEvent]) -> bool {
+    pending
+        .iter()
+        .any(|timed| matches!(timed.event, Event::Motion(_)))
+}
+
+/// Empties the held events once their motion has gone out as one increment at the scan's
+/// `time`: the truth of that same time follows the increment; earlier truth is left out (and
+/// counted), since the estimate never was at the pose it gives.
+fn release_truth_at(
+    pending: &mut Vec<TimedEvent>,
+    counts: &LaserOdometryCounts,
+    time: f64,
+    out: &mut VecDeque<TimedEvent>,
+) {
+    for timed in pending.drain(..) {
+        if !matches!(timed.event, Event::GroundTruth { .. }) {
+            continue;
+        }
+        if timed.time == time {
+            out.push_back(timed);
+        } else {
+            counts.truth_between_scans.fetch_add(1, Ordering::Relaxed);
+        }
     }
 }
 

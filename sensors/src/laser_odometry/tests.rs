@@ -178,7 +178,7 @@ fn laser_odometry_drifts_less_than_wheel_odometry_on_the_simulated_world() {
         "{report:?} of {scans}"
     );
     let laser = dead_reckoning(&laser);
-    assert_eq!(laser.len(), wheels.len());
+    assert_eq!(laser.len() + report.truth_between_scans, wheels.len());
     let rms = |poses: &[(Pose2, Pose2)]| {
         let sum: f64 = poses
             .iter()
@@ -192,6 +192,44 @@ fn laser_odometry_drifts_less_than_wheel_odometry_on_the_simulated_world() {
         laser < 0.5 * wheels,
         "laser {laser:.3} m, wheels {wheels:.3} m"
     );
+}
+
+#[test]
+fn truth_between_scans_is_left_out_and_truth_at_a_scan_follows_its_increment() {
+    let run = simulate(&laser_world(2), 3).unwrap();
+    let counts = run.dataset.counts();
+    // The built-in world scans at every other step.
+    assert!(counts.scans < counts.ground_truth, "{counts:?}");
+    let (laser, report) = laser_odometry(run.dataset, &LaserOdometryParams::default()).unwrap();
+    let kept: Vec<f64> = laser
+        .events
+        .iter()
+        .filter(|e| matches!(e.event, Event::GroundTruth { .. }))
+        .map(|e| e.time)
+        .collect();
+    assert_eq!(kept.len() + report.truth_between_scans, counts.ground_truth);
+    assert!(report.truth_between_scans > 0, "{report:?}");
+    let scan_times: Vec<f64> = laser
+        .events
+        .iter()
+        .filter(|e| matches!(e.event, Event::Scan { .. }))
+        .map(|e| e.time)
+        .collect();
+    // The first truth comes before any motion and those after the last scan follow the
+    // wheel odometry, which then goes out as it is; every other one is at a scan.
+    let last_scan = scan_times.last().copied().unwrap_or(f64::INFINITY);
+    for time in kept[1..].iter().filter(|&&t| t <= last_scan) {
+        assert!(scan_times.contains(time), "truth at {time} between scans");
+    }
+    // Dead reckoning on the matches moves between any two compared poses where the robot
+    // moved: no compared estimate is left behind, still at the scan before.
+    let poses = dead_reckoning(&laser);
+    for pair in poses.windows(2) {
+        let ((estimate_before, truth_before), (estimate, truth)) = (pair[0], pair[1]);
+        if truth_before.between(&truth).translation().norm() > 1e-3 {
+            assert_ne!(estimate_before, estimate, "stale estimate at {truth:?}");
+        }
+    }
 }
 
 /// RMS translation error of dead-reckoned poses against the truth, m.

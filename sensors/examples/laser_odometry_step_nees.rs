@@ -25,8 +25,9 @@ use slam_sensors::sim::{World, simulate};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
-/// An increment's NEES and each axis's squared error over its variance.
-type IncrementError = (f64, [f64; 3]);
+/// An increment's NEES, each axis's squared error over its variance, and each axis's
+/// deviation (m, m, rad).
+type IncrementError = (f64, [f64; 3], [f64; 3]);
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
@@ -41,7 +42,8 @@ fn main() -> Result<()> {
         .clone()
         .try_into()?;
     println!(
-        "data: increments, NEES mean / median (chi-square(3): 3 / 2.37), per axis x / y / heading"
+        "data: increments, NEES mean / median (chi-square(3): 3 / 2.37), per axis x / y / heading \
+         (1 each), median deviation x / y (mm) / heading (degrees)"
     );
     for source in args {
         let data = match source.parse::<u64>() {
@@ -50,16 +52,20 @@ fn main() -> Result<()> {
         };
         let (matched, _) = laser_odometry(data, &params)?;
         let errors = increment_errors(&matched)?;
-        let nees: Vec<f64> = errors.iter().map(|(nees, _)| *nees).collect();
-        let axis = |a: usize| mean(errors.iter().map(|(_, per_axis)| per_axis[a]));
+        let nees: Vec<f64> = errors.iter().map(|(nees, ..)| *nees).collect();
+        let axis = |a: usize| mean(errors.iter().map(|(_, per_axis, _)| per_axis[a]));
+        let deviation = |a: usize| median(errors.iter().map(|(_, _, sigma)| sigma[a]).collect());
         println!(
-            "{source}: {}, {:.2} / {:.2}, {:.2} / {:.2} / {:.2}",
+            "{source}: {}, {:.2} / {:.2}, {:.2} / {:.2} / {:.2}, {:.1} / {:.1} / {:.3}",
             nees.len(),
             mean(nees.iter().copied()),
             median(nees),
             axis(0),
             axis(1),
-            axis(2)
+            axis(2),
+            1e3 * deviation(0),
+            1e3 * deviation(1),
+            deviation(2).to_degrees()
         );
     }
     Ok(())
@@ -96,7 +102,8 @@ fn increment_errors(dataset: &Dataset) -> Result<Vec<IncrementError>> {
                 wrap_angle(estimate.theta - real.theta),
             );
             let per_axis = [0, 1, 2].map(|a| error[a] * error[a] / covariance[(a, a)]);
-            errors.push((error.dot(&(information * error)), per_axis));
+            let sigma = [0, 1, 2].map(|a| covariance[(a, a)].max(0.0).sqrt());
+            errors.push((error.dot(&(information * error)), per_axis, sigma));
         }
         (increment, scan_time, truth_at_last_scan) = (None, None, Some(now));
     }

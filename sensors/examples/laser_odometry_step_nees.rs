@@ -1,13 +1,15 @@
-//! The laser odometry stream's increments against the truth, one scan interval at a time: the
-//! NEES of each increment (between consecutive scans that have a true or reference pose at
-//! their own time) under the covariance the stream gives it, and the mean of each axis's
-//! squared error over its variance. 3 (1 per axis) for a calibrated covariance.
+//! The laser odometry stream's increments against the truth: the NEES of the motion between
+//! scans that have a true or reference pose at their own time, under the covariance the stream
+//! gives it, over one scan interval and compounded over longer stretches. 3 (1 per axis) for a
+//! calibrated covariance.
 //!
 //! This is the stream a filter sees with `[data.laser_odometry]` (a local map of key scans,
 //! not the scan-to-scan matches of the `laser_odometry_nees` example), with the settings of a
 //! `slam` config's `[data.laser_odometry]` table. Each further argument is a seed of the
 //! built-in world or the path of a CARMEN log with reference poses (a Radish corrected log, or
-//! one made noisy by `noisy_carmen.py`).
+//! one made noisy by `noisy_carmen.py`). Against reference poses, the reference's own error
+//! between two scans counts as the odometry's: it weighs most over one interval, and less as
+//! the compounded covariance grows over longer stretches.
 //!
 //! ```sh
 //! cargo run --release -p slam-sensors --example laser_odometry_step_nees -- \
@@ -16,8 +18,8 @@
 
 use std::path::Path;
 
-use slam_core::nalgebra::{DMatrix, Matrix3, Vector3};
-use slam_core::{MotionModel, Pose2, wrap_angle};
+use slam_core::nalgebra::{Matrix3, Vector3};
+use slam_core::{MotionModel, Pose2, nalgebra::DMatrix, wrap_angle};
 use slam_sensors::data::{CarmenOptions, read_carmen};
 use slam_sensors::events::{Dataset, Event};
 use slam_sensors::laser_odometry::{LaserOdometryParams, laser_odometry};
@@ -25,9 +27,17 @@ use slam_sensors::sim::{World, simulate};
 
 type Result<T> = std::result::Result<T, Box<dyn std::error::Error>>;
 
-/// An increment's NEES, each axis's squared error over its variance, and each axis's
-/// deviation (m, m, rad).
-type IncrementError = (f64, [f64; 3], [f64; 3]);
+/// The motion over one stretch between scans: the true (or reference) motion, the stream's
+/// compounded motion and its covariance.
+#[derive(Clone, Copy)]
+struct Stretch {
+    real: Pose2,
+    estimate: Pose2,
+    covariance: Matrix3<f64>,
+}
+
+/// Scan intervals compounded into the stretches whose errors are printed.
+const HORIZONS: [usize; 4] = [1, 10, 50, 200];
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
@@ -42,8 +52,9 @@ fn main() -> Result<()> {
         .clone()
         .try_into()?;
     println!(
-        "data: increments, NEES mean / median (chi-square(3): 3 / 2.37), per axis x / y / heading \
-         (1 each), median deviation x / y (mm) / heading (degrees)"
+        "data, scan intervals per stretch: stretches, NEES mean / median (chi-square(3): \
+         3 / 2.37), per axis x / y / heading (1 each), median deviation x / y (mm) / heading \
+         (degrees)"
     );
     for source in args {
         let data = match source.parse::<u64>() {
@@ -51,29 +62,23 @@ fn main() -> Result<()> {
             Err(_) => read_carmen(Path::new(&source), &CarmenOptions::default())?,
         };
         let (matched, _) = laser_odometry(data, &params)?;
-        let errors = increment_errors(&matched)?;
-        let nees: Vec<f64> = errors.iter().map(|(nees, ..)| *nees).collect();
-        let axis = |a: usize| mean(errors.iter().map(|(_, per_axis, _)| per_axis[a]));
-        let deviation = |a: usize| median(errors.iter().map(|(_, _, sigma)| sigma[a]).collect());
-        println!(
-            "{source}: {}, {:.2} / {:.2}, {:.2} / {:.2} / {:.2}, {:.1} / {:.1} / {:.3}",
-            nees.len(),
-            mean(nees.iter().copied()),
-            median(nees),
-            axis(0),
-            axis(1),
-            axis(2),
-            1e3 * deviation(0),
-            1e3 * deviation(1),
-            deviation(2).to_degrees()
-        );
+        let intervals = scan_intervals(&matched)?;
+        for horizon in HORIZONS {
+            let stretches: Vec<Stretch> = intervals
+                .chunks_exact(horizon)
+                .map(|chunk| chunk.iter().copied().reduce(join).expect("a full chunk"))
+                .collect();
+            if !stretches.is_empty() {
+                println!("{source}, {horizon}: {}", summary(&stretches));
+            }
+        }
     }
     Ok(())
 }
 
-/// Per scan interval: the increment's NEES and each axis's squared error over its variance.
-fn increment_errors(dataset: &Dataset) -> Result<Vec<IncrementError>> {
-    let mut errors = Vec::new();
+/// The stretches from each scan with a truth to the next.
+fn scan_intervals(dataset: &Dataset) -> Result<Vec<Stretch>> {
+    let mut intervals = Vec::new();
     let (mut truth, mut scan_time): (Option<(f64, Pose2)>, Option<f64>) = (None, None);
     let mut truth_at_last_scan: Option<Pose2> = None;
     // The motion since the last scan with a truth, compounded, and its covariance.
@@ -92,22 +97,27 @@ fn increment_errors(dataset: &Dataset) -> Result<Vec<IncrementError>> {
         if time != truth_time {
             continue;
         }
-        if let (Some(before), Some((estimate, covariance))) = (truth_at_last_scan, increment)
-            && let Some(information) = covariance.try_inverse()
-        {
-            let real = before.between(&now);
-            let error = Vector3::new(
-                estimate.x - real.x,
-                estimate.y - real.y,
-                wrap_angle(estimate.theta - real.theta),
-            );
-            let per_axis = [0, 1, 2].map(|a| error[a] * error[a] / covariance[(a, a)]);
-            let sigma = [0, 1, 2].map(|a| covariance[(a, a)].max(0.0).sqrt());
-            errors.push((error.dot(&(information * error)), per_axis, sigma));
+        if let (Some(before), Some((estimate, covariance))) = (truth_at_last_scan, increment) {
+            intervals.push(Stretch {
+                real: before.between(&now),
+                estimate,
+                covariance,
+            });
         }
         (increment, scan_time, truth_at_last_scan) = (None, None, Some(now));
     }
-    Ok(errors)
+    Ok(intervals)
+}
+
+/// `first` followed by `second` (eq. 26 for the covariance).
+fn join(first: Stretch, second: Stretch) -> Stretch {
+    let (estimate, d_first, d_second) = first.estimate.compose_with_jacobians(&second.estimate);
+    Stretch {
+        real: first.real.compose(&second.real),
+        estimate,
+        covariance: d_first * first.covariance * d_first.transpose()
+            + d_second * second.covariance * d_second.transpose(),
+    }
 }
 
 /// `so_far` followed by `motion`, with the covariance of the compound (eq. 26).
@@ -128,9 +138,40 @@ fn compound(
     ))
 }
 
-fn mean(values: impl Iterator<Item = f64>) -> f64 {
-    let (sum, count) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
-    sum / count.max(1) as f64
+/// The stretches' NEES (mean / median), per-axis squared errors over variances and median
+/// deviations, as one line.
+fn summary(stretches: &[Stretch]) -> String {
+    let mut nees = Vec::new();
+    let (mut per_axis, mut deviations) = ([0.0; 3], [Vec::new(), Vec::new(), Vec::new()]);
+    for stretch in stretches {
+        let error = Vector3::new(
+            stretch.estimate.x - stretch.real.x,
+            stretch.estimate.y - stretch.real.y,
+            wrap_angle(stretch.estimate.theta - stretch.real.theta),
+        );
+        let Some(information) = stretch.covariance.try_inverse() else {
+            continue;
+        };
+        nees.push(error.dot(&(information * error)));
+        for axis in 0..3 {
+            let variance = stretch.covariance[(axis, axis)];
+            per_axis[axis] += error[axis] * error[axis] / variance / stretches.len() as f64;
+            deviations[axis].push(variance.max(0.0).sqrt());
+        }
+    }
+    let [x, y, heading] = deviations.map(median);
+    format!(
+        "{}, {:.2} / {:.2}, {:.2} / {:.2} / {:.2}, {:.1} / {:.1} / {:.3}",
+        nees.len(),
+        nees.iter().sum::<f64>() / nees.len().max(1) as f64,
+        median(nees),
+        per_axis[0],
+        per_axis[1],
+        per_axis[2],
+        1e3 * x,
+        1e3 * y,
+        heading.to_degrees()
+    )
 }
 
 fn median(mut values: Vec<f64>) -> f64 {

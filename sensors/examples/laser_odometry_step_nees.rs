@@ -72,8 +72,68 @@ fn main() -> Result<()> {
                 println!("{source}, {horizon}: {}", summary(&stretches));
             }
         }
+        println!("{source}: {}", heading_drift(&intervals));
     }
     Ok(())
+}
+
+/// Deviations beyond which a scan interval's heading error counts as an outlier.
+const OUTLIER_SIGMAS: f64 = 5.0;
+
+/// Where the heading error comes from, as one line: the intervals whose heading error is
+/// beyond [`OUTLIER_SIGMAS`] of the deviation the stream claims (how many, the sum of their
+/// errors against the sum of all, the largest: interval, degrees, deviations); the errors'
+/// least-squares slope on each interval's own turn (a turn scale error); and the running sum
+/// of the errors every 50 intervals (the drift of the path's heading, the reference's
+/// jitter aside).
+fn heading_drift(intervals: &[Stretch]) -> String {
+    let errors: Vec<(usize, f64, f64)> = intervals
+        .iter()
+        .enumerate()
+        .map(|(k, stretch)| {
+            let error = wrap_angle(stretch.estimate.theta - stretch.real.theta);
+            let sigma = stretch.covariance[(2, 2)].max(0.0).sqrt();
+            (k, error, error / sigma)
+        })
+        .collect();
+    let total: f64 = errors.iter().map(|(_, error, _)| error).sum();
+    let mut outliers: Vec<(usize, f64, f64)> = errors
+        .iter()
+        .copied()
+        .filter(|(_, _, sigmas)| sigmas.abs() > OUTLIER_SIGMAS)
+        .collect();
+    let outlying: f64 = outliers.iter().map(|(_, error, _)| error).sum();
+    outliers.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
+    let largest: Vec<String> = outliers
+        .iter()
+        .take(5)
+        .map(|(k, error, sigmas)| format!("{k}: {:+.2} ({sigmas:+.0})", error.to_degrees()))
+        .collect();
+    let (mut product, mut turned) = (0.0, 0.0);
+    for (stretch, (_, error, _)) in intervals.iter().zip(&errors) {
+        product += error * stretch.real.theta;
+        turned += stretch.real.theta * stretch.real.theta;
+    }
+    let mut running = 0.0;
+    let mut drift = Vec::new();
+    for (k, error, _) in &errors {
+        running += error;
+        if (k + 1) % 50 == 0 {
+            drift.push(format!("{:+.1}", running.to_degrees()));
+        }
+    }
+    format!(
+        "{} of {} intervals beyond {OUTLIER_SIGMAS} deviations in heading, their errors summing \
+         to {:+.2} of the {:+.2} degrees of all (largest: {}); heading error per radian turned \
+         in an interval {:+.2} %; running sum every 50 intervals: {} degrees",
+        outliers.len(),
+        intervals.len(),
+        outlying.to_degrees(),
+        total.to_degrees(),
+        largest.join(", "),
+        100.0 * product / turned.max(f64::MIN_POSITIVE),
+        drift.join(" ")
+    )
 }
 
 /// The stretches from each scan with a truth to the next.

@@ -201,20 +201,14 @@ fn truth_between_scans_is_left_out_and_truth_at_a_scan_follows_its_increment() {
     // The built-in world scans at every other step.
     assert!(counts.scans < counts.ground_truth, "{counts:?}");
     let (laser, report) = laser_odometry(run.dataset, &LaserOdometryParams::default()).unwrap();
-    let kept: Vec<f64> = laser
-        .events
-        .iter()
-        .filter(|e| matches!(e.event, Event::GroundTruth { .. }))
-        .map(|e| e.time)
-        .collect();
+    let times_of = |kind: fn(&Event) -> bool| -> Vec<f64> {
+        let events = laser.events.iter().filter(|e| kind(&e.event));
+        events.map(|e| e.time).collect()
+    };
+    let kept = times_of(|e| matches!(e, Event::GroundTruth { .. }));
     assert_eq!(kept.len() + report.truth_between_scans, counts.ground_truth);
     assert!(report.truth_between_scans > 0, "{report:?}");
-    let scan_times: Vec<f64> = laser
-        .events
-        .iter()
-        .filter(|e| matches!(e.event, Event::Scan { .. }))
-        .map(|e| e.time)
-        .collect();
+    let scan_times = times_of(|e| matches!(e, Event::Scan { .. }));
     // The first truth comes before any motion and those after the last scan follow the
     // wheel odometry, which then goes out as it is; every other one is at a scan.
     let last_scan = scan_times.last().copied().unwrap_or(f64::INFINITY);

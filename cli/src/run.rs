@@ -222,16 +222,7 @@ fn run_inner(
     if let Some(report) = &output.laser_odometry
         && !quiet
     {
-        let between = match report.truth_between_scans {
-            0 => String::new(),
-            n => format!(
-                "; {n} true or reference poses between scans not compared (the estimate moves at scans)"
-            ),
-        };
-        eprintln!(
-            "laser odometry: {} scans matched, {} matches refused (odometry kept){between}",
-            report.matched, report.refused
-        );
+        eprintln!("{report}");
     }
     Ok((summary, RunStatus::of(&output)))
 }

@@ -202,6 +202,35 @@ pub struct LaserOdometryReport {
     pub truth_between_scans: usize,
 }
 
+/// One line for a run's summary: `laser odometry: M scans matched, R matches refused
+/// (odometry kept)`, and how many true or reference poses between scans were not compared.
+///
+/// ```
+/// use slam_sensors::laser_odometry::LaserOdometryReport;
+/// let report = LaserOdometryReport { matched: 5, refused: 1, truth_between_scans: 0 };
+/// assert_eq!(
+///     report.to_string(),
+///     "laser odometry: 5 scans matched, 1 matches refused (odometry kept)"
+/// );
+/// ```
+impl std::fmt::Display for LaserOdometryReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "laser odometry: {} scans matched, {} matches refused (odometry kept)",
+            self.matched, self.refused
+        )?;
+        match self.truth_between_scans {
+            0 => Ok(()),
+            n => write!(
+                f,
+                "; {n} true or reference poses between scans not compared (the estimate moves \
+                 at scans)"
+            ),
+        }
+    }
+}
+
 /// `(-v_y, v_x)`.
 fn perp(v: &Vector2<f64>) -> Vector2<f64> {
     Vector2::new(-v.y, v.x)

@@ -6,8 +6,12 @@
 //! squared normalized end error of 1, in every bin.
 //!
 //! ```sh
-//! cargo run --release -p slam-sensors --example segment_calibration -- [SEEDS]
+//! cargo run --release -p slam-sensors --example segment_calibration -- [SEEDS [WORLD.toml [rough]]]
 //! ```
+//!
+//! `WORLD.toml` replaces the built-in world; `rough` turns on `scale_by_residuals` (as
+//! `configs/carmen-walls.toml` does). The signed line-angle error, split by the side the
+//! segment lies on, shows a bias: a filter turns the robot by minus that angle.
 
 use slam_core::nalgebra::Vector2;
 use slam_core::{Pose2, wrap_angle};
@@ -77,12 +81,22 @@ fn main() {
         .nth(1)
         .and_then(|s| s.parse().ok())
         .unwrap_or(5);
-    let world = World::default_world();
-    let laser = world.laser.clone().expect("the default world has a laser");
+    let args: Vec<String> = std::env::args().collect();
+    let world = match args.get(2) {
+        Some(path) => World::from_file(std::path::Path::new(path)).expect("a world file"),
+        None => World::default_world(),
+    };
+    let laser = world.laser.clone().expect("the world has a laser");
     let params = LineExtractorParams {
         sigma_range: laser.sigma_range,
+        scale_by_residuals: args.get(3).is_some_and(|a| a == "rough"),
         ..LineExtractorParams::default()
     };
+    // Signed angle error (measured - true), rad, and its count, for segments on the
+    // sensor's right and left (by the segment's middle), and by length.
+    let mut alpha_by_side = [(0usize, 0.0f64); 2];
+    let mut alpha_by_length = [(0usize, 0.0f64); 4];
+    let mut flipped = 0usize;
     let mut by_points: Vec<Bin> = vec![Bin::default(); 5];
     let mut by_range: Vec<Bin> = vec![Bin::default(); 4];
     let mut by_incidence: Vec<Bin> = vec![Bin::default(); 4];
@@ -147,6 +161,25 @@ fn main() {
                             continue;
                         };
                         rho_bias += error.y;
+                        let middle = 0.5 * (segment.ends[0] + segment.ends[1]);
+                        let side = usize::from(middle.y > 0.0);
+                        // A line through (nearly) the sensor can flip its normal: not a bias.
+                        let angle_error = if error.x.abs() > std::f64::consts::FRAC_PI_4 {
+                            flipped += 1;
+                            0.0
+                        } else {
+                            error.x
+                        };
+                        alpha_by_side[side].0 += 1;
+                        alpha_by_side[side].1 += angle_error;
+                        let length_bin = match (segment.ends[1] - segment.ends[0]).norm() {
+                            x if x < 1.0 => 0,
+                            x if x < 2.0 => 1,
+                            x if x < 4.0 => 2,
+                            _ => 3,
+                        };
+                        alpha_by_length[length_bin].0 += 1;
+                        alpha_by_length[length_bin].1 += angle_error;
                         all.add(nis, 9.21);
                         let p = match segment.points {
                             0..=14 => 0,
@@ -228,6 +261,24 @@ fn main() {
     println!("line NIS (2 dof; 99% at 9.21), seeds 1..={seeds}, unmatched {unmatched}");
     println!("{}", all.line("all"));
     println!("mean rho error {:+.4} m", rho_bias / all.n.max(1) as f64);
+    println!("signed angle errors (lines more than 45 degrees off, {flipped}, counted as 0):");
+    for (b, l) in alpha_by_side.iter().zip(["right", "left"]) {
+        println!(
+            "{l:>28}: n {:6}  mean signed angle error {:+.3} deg",
+            b.0,
+            (b.1 / b.0.max(1) as f64).to_degrees()
+        );
+    }
+    for (b, l) in alpha_by_length
+        .iter()
+        .zip(["length <1 m", "1-2 m", "2-4 m", ">=4 m"])
+    {
+        println!(
+            "{l:>28}: n {:6}  mean signed angle error {:+.3} deg",
+            b.0,
+            (b.1 / b.0.max(1) as f64).to_degrees()
+        );
+    }
     for (b, l) in by_points
         .iter()
         .zip(["points <15", "15-29", "30-59", "60-119", ">=120"])

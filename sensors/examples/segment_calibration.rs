@@ -262,17 +262,11 @@ fn main() {
     println!("{}", all.line("all"));
     println!("mean rho error {:+.4} m", rho_bias / all.n.max(1) as f64);
     println!("signed angle errors (lines more than 45 degrees off, {flipped}, counted as 0):");
-    for (b, l) in alpha_by_side.iter().zip(["right", "left"]) {
-        println!(
-            "{l:>28}: n {:6}  mean signed angle error {:+.3} deg",
-            b.0,
-            (b.1 / b.0.max(1) as f64).to_degrees()
-        );
-    }
-    for (b, l) in alpha_by_length
+    let sides = alpha_by_side.iter().zip(["right", "left"]);
+    let lengths = alpha_by_length
         .iter()
-        .zip(["length <1 m", "1-2 m", "2-4 m", ">=4 m"])
-    {
+        .zip(["length <1 m", "1-2 m", "2-4 m", ">=4 m"]);
+    for (b, l) in sides.chain(lengths) {
         println!(
             "{l:>28}: n {:6}  mean signed angle error {:+.3} deg",
             b.0,

@@ -905,10 +905,34 @@ mod tests {
     /// Segments meeting in a corner are fitted without the other wall's readings: over many
     /// noisy scans of a room corner, the line NIS against the true walls averages 2 (it
     /// averaged about 3 when the corner readings went into both fits).
+    /// A scan over 180 degrees in 361 beams of the ranges `range_to(bearing)` with noise; a
+    /// range beyond `max_range - 0.5` gives no return.
+    fn noisy_half_scan(
+        range_to: impl Fn(f64) -> f64,
+        noise: &rand_distr::Normal<f64>,
+        rng: &mut rand_chacha::ChaCha8Rng,
+        max_range: f64,
+    ) -> LaserScan {
+        use rand_distr::Distribution;
+        let angle_min = -std::f64::consts::FRAC_PI_2;
+        let increment = std::f64::consts::PI / 360.0;
+        let ranges: Vec<f64> = (0..361)
+            .map(|i| {
+                let range = range_to(angle_min + i as f64 * increment);
+                if range < max_range - 0.5 {
+                    range + noise.sample(rng)
+                } else {
+                    max_range // no return
+                }
+            })
+            .collect();
+        LaserScan::new(angle_min, -angle_min, ranges, 0.0, max_range).unwrap()
+    }
+
     #[test]
     fn corner_segments_and_their_ends_are_calibrated() {
         use rand::SeedableRng;
-        use rand_distr::{Distribution, Normal};
+        use rand_distr::Normal;
         let sigma = 0.02;
         let noise = Normal::new(0.0, sigma).unwrap();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
@@ -917,30 +941,20 @@ mod tests {
         let (mut sum, mut count) = (0.0, 0);
         let (mut corner_z2, mut corners) = (0.0, 0);
         for _ in 0..200 {
-            let angle_min = -std::f64::consts::FRAC_PI_2;
-            let increment = std::f64::consts::PI / 360.0;
-            let ranges: Vec<f64> = (0..361)
-                .map(|i| {
-                    let b = angle_min + i as f64 * increment;
-                    let to_a = if b.cos() > 1e-9 {
-                        2.0 / b.cos()
-                    } else {
-                        f64::INFINITY
-                    };
-                    let to_b = if b.sin() > 1e-9 {
-                        1.0 / b.sin()
-                    } else {
-                        f64::INFINITY
-                    };
-                    let range = to_a.min(to_b);
-                    if range < 7.5 {
-                        range + noise.sample(&mut rng)
-                    } else {
-                        8.0 // no return
-                    }
-                })
-                .collect();
-            let scan = LaserScan::new(angle_min, -angle_min, ranges, 0.0, 8.0).unwrap();
+            let wall_ranges = |b: f64| {
+                let to_a = if b.cos() > 1e-9 {
+                    2.0 / b.cos()
+                } else {
+                    f64::INFINITY
+                };
+                let to_b = if b.sin() > 1e-9 {
+                    1.0 / b.sin()
+                } else {
+                    f64::INFINITY
+                };
+                to_a.min(to_b)
+            };
+            let scan = noisy_half_scan(wall_ranges, &noise, &mut rng, 8.0);
             let params = LineExtractorParams {
                 sigma_range: sigma,
                 ..LineExtractorParams::default()
@@ -989,7 +1003,7 @@ mod tests {
     #[test]
     fn readings_of_a_side_wall_at_a_segments_end_are_left_out() {
         use rand::SeedableRng;
-        use rand_distr::{Distribution, Normal};
+        use rand_distr::Normal;
         let sigma = 0.05;
         let noise = Normal::new(0.0, sigma).unwrap();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
@@ -1010,19 +1024,7 @@ mod tests {
         };
         let (mut angle_sum, mut nis_sum, mut count) = (0.0, 0.0, 0);
         for _ in 0..100 {
-            let angle_min = -std::f64::consts::FRAC_PI_2;
-            let increment = std::f64::consts::PI / 360.0;
-            let ranges: Vec<f64> = (0..361)
-                .map(|i| {
-                    let range = range_to(angle_min + i as f64 * increment);
-                    if range < 9.5 {
-                        range + noise.sample(&mut rng)
-                    } else {
-                        10.0 // no return
-                    }
-                })
-                .collect();
-            let scan = LaserScan::new(angle_min, -angle_min, ranges, 0.0, 10.0).unwrap();
+            let scan = noisy_half_scan(range_to, &noise, &mut rng, 10.0);
             let params = LineExtractorParams {
                 sigma_range: sigma,
                 ..LineExtractorParams::default()

@@ -902,9 +902,6 @@ mod tests {
         assert!(diff < 1e-4 * analytic.amax(), "{numeric} vs {analytic}");
     }
 
-    /// Segments meeting in a corner are fitted without the other wall's readings: over many
-    /// noisy scans of a room corner, the line NIS against the true walls averages 2 (it
-    /// averaged about 3 when the corner readings went into both fits).
     /// A scan over 180 degrees in 361 beams of the ranges `range_to(bearing)` with noise; a
     /// range beyond `max_range - 0.5` gives no return.
     fn noisy_half_scan(
@@ -929,6 +926,9 @@ mod tests {
         LaserScan::new(angle_min, -angle_min, ranges, 0.0, max_range).unwrap()
     }
 
+    /// Segments meeting in a corner are fitted without the other wall's readings: over many
+    /// noisy scans of a room corner, the line NIS against the true walls averages 2 (it
+    /// averaged about 3 when the corner readings went into both fits).
     #[test]
     fn corner_segments_and_their_ends_are_calibrated() {
         use rand::SeedableRng;

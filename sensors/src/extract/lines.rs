@@ -276,13 +276,15 @@ pub fn extract_segments(scan: &LaserScan, params: &LineExtractorParams) -> Vec<E
 /// the same total-least-squares line and `(alpha, rho)` covariance from
 /// `params.sigma_range`, the same end spacing, the same corner and jump-edge detection of
 /// real ends between consecutive segments. Only the decision of which readings form a wall
-/// differs. So that a group bridging a gap is not one wall, a group is cut where two of its
-/// consecutive readings lie farther apart than `max_gap + gap_per_metre * range` (the
-/// clustering rule of [`extract_segments`], applied to the group's own readings, so a
-/// reading left out as an outlier does not cut it); the pieces are then filtered as in
-/// [`extract_segments`]: free-standing short objects are left out, and pieces with fewer than
-/// `min_points` readings or shorter than `min_length` are dropped. Invalid readings and beam
-/// indices outside the scan are ignored.
+/// differs: a group is fitted whole, since the segmentation that made it has decided which
+/// readings are the wall's (split-and-merge leaves runs of end readings off the line of the
+/// rest out of the fit). So that a group bridging a gap is not one wall, a group is cut
+/// where two of its consecutive readings lie farther apart than `max_gap + gap_per_metre *
+/// range` (the clustering rule of [`extract_segments`], applied to the group's own readings,
+/// so a reading left out as an outlier does not cut it); the pieces are then filtered as in
+/// [`extract_segments`]: free-standing short objects are left out, and pieces with fewer
+/// than `min_points` readings or shorter than `min_length` are dropped. Invalid readings and
+/// beam indices outside the scan are ignored.
 ///
 /// ```
 /// use slam_sensors::{LaserScan, extract::{extract_segments, segments_from_readings, LineExtractorParams}};

@@ -50,6 +50,11 @@ impl Bin {
     }
 }
 
+/// The bin of `value` among the bins below `edges[0]`, `edges[1]`, `edges[2]` and above.
+fn bin(value: f64, edges: [f64; 3]) -> usize {
+    edges.iter().take_while(|&&edge| value >= edge).count()
+}
+
 /// A true wall in the sensor frame: its normal form and ends.
 fn wall_in_sensor(world_from_sensor: &Pose2, a: &Vector2<f64>, b: &Vector2<f64>) -> WallLine {
     let a_s = world_from_sensor.inverse_transform_point(a);
@@ -172,12 +177,8 @@ fn main() {
                         };
                         alpha_by_side[side].0 += 1;
                         alpha_by_side[side].1 += angle_error;
-                        let length_bin = match (segment.ends[1] - segment.ends[0]).norm() {
-                            x if x < 1.0 => 0,
-                            x if x < 2.0 => 1,
-                            x if x < 4.0 => 2,
-                            _ => 3,
-                        };
+                        let length_bin =
+                            bin((segment.ends[1] - segment.ends[0]).norm(), [1.0, 2.0, 4.0]);
                         alpha_by_length[length_bin].0 += 1;
                         alpha_by_length[length_bin].1 += angle_error;
                         all.add(nis, 9.21);
@@ -189,24 +190,14 @@ fn main() {
                             _ => 4,
                         };
                         by_points[p].add(nis, 9.21);
-                        let r = match segment.rho {
-                            x if x < 1.0 => 0,
-                            x if x < 2.0 => 1,
-                            x if x < 4.0 => 2,
-                            _ => 3,
-                        };
+                        let r = bin(segment.rho, [1.0, 2.0, 4.0]);
                         by_range[r].add(nis, 9.21);
                         // Incidence at the segment's middle: angle between beam and normal.
                         let mid = 0.5 * (segment.ends[0] + segment.ends[1]);
                         let incidence = wrap_angle(mid.y.atan2(mid.x) - segment.alpha)
                             .abs()
                             .to_degrees();
-                        let i = match incidence {
-                            x if x < 30.0 => 0,
-                            x if x < 50.0 => 1,
-                            x if x < 65.0 => 2,
-                            _ => 3,
-                        };
+                        let i = bin(incidence, [30.0, 50.0, 65.0]);
                         by_incidence[i].add(nis, 9.21);
                         let corner_end = (0..2).any(|k| segment.real[k] && segment.corner[k]);
                         let kind = if corner_end {
@@ -241,12 +232,7 @@ fn main() {
                                 // Positive: the end placed beyond the true end (the wall too long).
                                 let inward = (segment.ends[1 - k] - end).normalize();
                                 let beyond = -(end - true_end).dot(&inward);
-                                let r = match end.norm() {
-                                    x if x < 2.0 => 0,
-                                    x if x < 4.0 => 1,
-                                    x if x < 6.0 => 2,
-                                    _ => 3,
-                                };
+                                let r = bin(end.norm(), [2.0, 4.0, 6.0]);
                                 jump_by_range[r].0 += 1;
                                 jump_by_range[r].1 += beyond;
                                 jump_by_range[r].2 += z2;

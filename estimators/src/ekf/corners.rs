@@ -70,7 +70,19 @@ impl<P: RobotPose> Ekf<P> {
         if !self.constrain_together(&pair)? {
             return Ok(false);
         }
-        self.share(&pair)?;
+        match self.share(&pair) {
+            Ok(()) => {}
+            // The constraint moved the two ends to where their midpoint would turn a feature
+            // around (a short wall's end pulled past its other end). The map refused the
+            // share and is unchanged; the ends stay two blocks, held together by the
+            // constraint.
+            Err(Error::Degenerate(_)) => {
+                self.skips
+                    .count("corners: the shared point would turn a feature around (not joined)");
+                return Ok(false);
+            }
+            Err(error) => return Err(error),
+        }
         self.corners_joined += 1;
         Ok(true)
     }

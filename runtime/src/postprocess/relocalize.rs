@@ -703,10 +703,10 @@ impl Placement {
     }
 }
 
-/// The maximum a posteriori pose of one scan (returns `in_robot`) against the walls (`map`:
-/// their grid and segments), Gauss-Newton from `start`, with the estimate and its covariance
-/// (`prior`) as prior; `None` when fewer than `min_pairs` returns lie near a wall or the
-/// normal equations are singular.
+/// The maximum a posteriori pose of one scan (returns `in_robot`) against the walls (their
+/// grid and segments), Gauss-Newton from `start`, with the estimate and its covariance as
+/// prior; `None` when fewer than `min_pairs` returns lie near a wall or the normal equations
+/// are singular.
 ///
 /// The prior stays the estimate whatever the start: where the walls leave a direction open
 /// (along a corridor) the placement keeps the estimate's, so a start carried from the scans

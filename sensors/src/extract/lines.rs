@@ -641,7 +641,8 @@ type PlacedEnd = (Vector2<f64>, f64);
 /// where the wall most likely ends: a corner at the intersection of the two lines, an edge
 /// halfway between the last point on the wall and where the next beam's ray crosses the
 /// line (the true edge lies anywhere between them; the last point alone would put it
-/// systematically short by half a beam spacing). An edge's deviation along the wall is that
+/// systematically short by half a beam spacing), when that crossing lies within the
+/// clustering gap ([`sees_past_the_end`]). An edge's deviation along the wall is that
 /// of the interval, `width / sqrt(12)`, with the range noise along the wall; a corner's is
 /// propagated from the two lines' covariances.
 fn mark_real_ends(

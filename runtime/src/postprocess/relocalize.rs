@@ -862,23 +862,33 @@ mod tests {
         (walls, points)
     }
 
+    /// [`relocalize`] with the default settings: the placement of the returns `points`
+    /// against `walls`, Gauss-Newton from `start`, under the prior `(estimate, covariance)`.
+    fn place(
+        walls: &[Segment],
+        points: &[Vector2<f64>],
+        start: &Pose2,
+        prior: (&Pose2, &Matrix3<f64>),
+    ) -> Option<Placement> {
+        let grid = SegmentGrid::new(walls, 1.0);
+        relocalize(
+            &RelocalizeConfig::default(),
+            (&grid, walls),
+            points,
+            start,
+            prior,
+        )
+    }
+
     #[test]
     fn a_scan_is_pulled_onto_the_walls_from_a_wrong_estimate() {
         let truth = Pose2::new(1.0, -0.5, 0.3);
         let (walls, points) = room_scan(&truth);
-        let grid = SegmentGrid::new(&walls, 1.0);
         let estimate = Pose2::new(1.12, -0.41, 0.33);
         let loose = Matrix3::from_diagonal(&Vector3::new(0.04, 0.04, 0.01));
-        let config = RelocalizeConfig::default();
-        let found = relocalize(
-            &config,
-            (&grid, &walls),
-            &points,
-            &estimate,
-            (&estimate, &loose),
-        )
-        .unwrap()
-        .world_from_robot;
+        let found = place(&walls, &points, &estimate, (&estimate, &loose))
+            .unwrap()
+            .world_from_robot;
         let error = truth.between(&found);
         assert!(error.translation().norm() < 1e-3, "{found:?}");
         assert!(error.theta.abs() < 1e-4, "{found:?}");
@@ -888,40 +898,26 @@ mod tests {
     fn a_certain_estimate_is_kept_and_a_scan_far_from_the_walls_is_not_placed() {
         let truth = Pose2::new(1.0, -0.5, 0.3);
         let (walls, points) = room_scan(&truth);
-        let grid = SegmentGrid::new(&walls, 1.0);
         let estimate = Pose2::new(1.05, -0.5, 0.3);
-        let config = RelocalizeConfig::default();
         // A prior at the floor ((1 mm)^2) holds against 5 cm of disagreement of the returns;
         // a loose one gives way to them.
         let certain = Matrix3::zeros();
-        let kept = relocalize(
-            &config,
-            (&grid, &walls),
-            &points,
-            &estimate,
-            (&estimate, &certain),
-        )
-        .unwrap()
-        .world_from_robot;
+        let kept = place(&walls, &points, &estimate, (&estimate, &certain))
+            .unwrap()
+            .world_from_robot;
         let shift = estimate.between(&kept).translation().norm();
         assert!(shift < 0.01, "moved {shift} m");
         let loose = Matrix3::from_diagonal(&Vector3::new(0.04, 0.04, 0.01));
-        let moved = relocalize(
-            &config,
-            (&grid, &walls),
-            &points,
-            &estimate,
-            (&estimate, &loose),
-        )
-        .unwrap()
-        .world_from_robot;
+        let moved = place(&walls, &points, &estimate, (&estimate, &loose))
+            .unwrap()
+            .world_from_robot;
         assert!(
             truth.between(&moved).translation().norm() < 1e-3,
             "{moved:?}"
         );
         // Placed 20 m away, no return lies near a wall: no pose.
         let far = Pose2::new(-20.0, 0.0, 0.0);
-        assert!(relocalize(&config, (&grid, &walls), &points, &far, (&far, &loose)).is_none());
+        assert!(place(&walls, &points, &far, (&far, &loose)).is_none());
     }
 
     #[test]
@@ -931,15 +927,13 @@ mod tests {
         // the one from a carried correction finds them and wins.
         let truth = Pose2::new(1.0, -0.5, 0.3);
         let (walls, points) = room_scan(&truth);
-        let grid = SegmentGrid::new(&walls, 1.0);
-        let config = RelocalizeConfig::default();
         let uncertain = Matrix3::from_diagonal(&Vector3::new(0.25, 0.25, 0.01));
         let off = Pose2::new(1.8, -0.5, 0.3);
         let carried = Pose2::new(1.03, -0.48, 0.3);
-        let place = |start: &Pose2| {
-            relocalize(&config, (&grid, &walls), &points, start, (&off, &uncertain)).unwrap()
+        let from = |start: &Pose2, covariance: &Matrix3<f64>| {
+            place(&walls, &points, start, (&off, covariance)).unwrap()
         };
-        let (from_off, from_carried) = (place(&off), place(&carried));
+        let (from_off, from_carried) = (from(&off, &uncertain), from(&carried, &uncertain));
         let miss = |p: &Placement| truth.between(&p.world_from_robot).translation().norm();
         assert!(miss(&from_off) > 0.5, "{from_off:?}");
         assert!(miss(&from_carried) < 0.05, "{from_carried:?}");
@@ -950,10 +944,7 @@ mod tests {
         // With a tight prior the estimate holds: the carried placement is pulled back
         // towards it and costs more than staying.
         let tight = Matrix3::from_diagonal(&Vector3::new(1e-4, 1e-4, 1e-5));
-        let place = |start: &Pose2| {
-            relocalize(&config, (&grid, &walls), &points, start, (&off, &tight)).unwrap()
-        };
-        assert!(place(&off).objective() < place(&carried).objective());
+        assert!(from(&off, &tight).objective() < from(&carried, &tight).objective());
     }
 
     #[test]
@@ -962,7 +953,6 @@ mod tests {
         // not the position along it. A start carried 0.9 m along the corridor ends where the
         // estimate is along it (the prior), on the walls across it.
         let walls = vec![(v(-50.0, 0.0), v(50.0, 0.0)), (v(-50.0, 2.5), v(50.0, 2.5))];
-        let grid = SegmentGrid::new(&walls, 1.0);
         let truth = Pose2::new(0.0, 1.25, 0.0);
         let points: Vec<Vector2<f64>> = (1..180)
             .map(|deg| {
@@ -980,16 +970,9 @@ mod tests {
         let estimate = Pose2::new(0.1, 1.1, 0.01);
         let covariance = Matrix3::from_diagonal(&Vector3::new(0.09, 0.09, 0.001));
         let carried = Pose2::new(1.0, 1.2, 0.0);
-        let config = RelocalizeConfig::default();
-        let placed = relocalize(
-            &config,
-            (&grid, &walls),
-            &points,
-            &carried,
-            (&estimate, &covariance),
-        )
-        .unwrap()
-        .world_from_robot;
+        let placed = place(&walls, &points, &carried, (&estimate, &covariance))
+            .unwrap()
+            .world_from_robot;
         assert!((placed.x - estimate.x).abs() < 0.05, "{placed:?}");
         assert!((placed.y - truth.y).abs() < 0.01, "{placed:?}");
         assert!(placed.theta.abs() < 1e-3, "{placed:?}");

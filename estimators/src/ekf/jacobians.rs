@@ -33,48 +33,85 @@ pub(super) fn coordinate_generators(coordinates: &Coordinates) -> DMatrix<f64> {
     g
 }
 
-/// `H - H N (N^T N)^-1 N^T`: the Jacobian that observes nothing along the columns of `n`
-/// (left as it is when `N^T N` is singular). `n` has 3 columns (the planar generators); the
-/// 3 x 3 Gram matrix is inverted in closed form.
+/// Each row `h` of `H` less `h N_s (N_s^T N_s)^+ N_s^T`, where `N_s` is `N` on the row's
+/// support (the columns `h` depends on): the closest Jacobian that observes nothing along the
+/// columns of `n` (`H N = 0`) without observing a state row the measurement does not depend on.
+/// Projecting over every column instead would give a wall's line measurement weight on the
+/// wall's end rows through their generators; an end just activated with a variance of 1e4 m^2
+/// then takes a step of metres from a measurement that says nothing about it. `n` has one
+/// row per column of `H` (the planar generators of those state rows).
 pub(super) fn project_out(h: &DMatrix<f64>, n: &DMatrix<f64>) -> DMatrix<f64> {
     let mut out = h.clone();
     project_out_in_place(&mut out, n.as_view());
     out
 }
 
-/// [`project_out`] written over `h` (no allocation for 3 directions): each row's `H N (N^T
-/// N)^-1` depends on that row alone, so the rows are projected one after the other.
+/// [`project_out`] written over `h`: each row's projection depends on that row alone, so the
+/// rows are projected one after the other (no allocation for up to 3 directions).
 pub(super) fn project_out_in_place(h: &mut DMatrix<f64>, n: DMatrixView<'_, f64>) {
-    if n.ncols() != 3 || n.nrows() != h.ncols() {
+    debug_assert_eq!(
+        n.nrows(),
+        h.ncols(),
+        "one generator row per Jacobian column"
+    );
+    if n.ncols() > 3 || n.nrows() != h.ncols() {
         *h = project_out_dense(h, &n.clone_owned());
         return;
     }
-    let mut gram = Matrix3::zeros();
-    for a in 0..3 {
-        for b in 0..3 {
-            gram[(a, b)] = n.column(a).dot(&n.column(b));
-        }
-    }
-    let Some(inverse) = gram.try_inverse() else {
-        return;
-    };
     for i in 0..h.nrows() {
-        // Row i of H N (N^T N)^-1.
+        let scale = h.row(i).amax();
+        let in_support = |value: f64| value.abs() > SUPPORT_TOLERANCE * scale;
+        let mut gram = Matrix3::<f64>::zeros();
+        for k in (0..h.ncols()).filter(|&k| in_support(h[(i, k)])) {
+            for a in 0..n.ncols() {
+                for b in 0..n.ncols() {
+                    gram[(a, b)] += n[(k, a)] * n[(k, b)];
+                }
+            }
+        }
+        // Row i of H N.
         let mut row = [0.0; 3];
-        for (a, value) in row.iter_mut().enumerate() {
+        for (a, value) in row.iter_mut().enumerate().take(n.ncols()) {
             *value = (0..h.ncols()).map(|k| h[(i, k)] * n[(k, a)]).sum();
         }
+        let inverse = symmetric_pseudo_inverse(gram);
         let mut hn = [0.0; 3];
         for (b, value) in hn.iter_mut().enumerate() {
             *value = (0..3).map(|a| row[a] * inverse[(a, b)]).sum();
         }
         for j in 0..h.ncols() {
-            h[(i, j)] -= (0..3).map(|b| hn[b] * n[(j, b)]).sum::<f64>();
+            if in_support(h[(i, j)]) {
+                h[(i, j)] -= (0..n.ncols()).map(|b| hn[b] * n[(j, b)]).sum::<f64>();
+            }
         }
     }
 }
 
-/// [`project_out`] for any number of directions, by nalgebra products.
+/// `(V L V^T)^+ = V L^+ V^T` of a symmetric positive semi-definite 3 x 3 matrix, eigenvalues
+/// below [`PSEUDO_INVERSE_TOLERANCE`] times the largest counting as zero.
+fn symmetric_pseudo_inverse(gram: Matrix3<f64>) -> Matrix3<f64> {
+    let eigen = gram.symmetric_eigen();
+    let largest = eigen.eigenvalues.amax();
+    let mut inverse = Matrix3::zeros();
+    for (k, &value) in eigen.eigenvalues.iter().enumerate() {
+        if value > PSEUDO_INVERSE_TOLERANCE * largest {
+            let v = eigen.eigenvectors.column(k);
+            inverse += v * v.transpose() / value;
+        }
+    }
+    inverse
+}
+
+/// A Jacobian entry at most this fraction of its row's largest is outside the row's support
+/// (rounding: a wall's line measurement has entries of 1e-16 on the wall's end rows).
+const SUPPORT_TOLERANCE: f64 = 1e-9;
+
+/// Eigenvalues of the support's Gram matrix below this fraction of its largest count as zero
+/// (directions the support cannot represent are left alone).
+const PSEUDO_INVERSE_TOLERANCE: f64 = 1e-12;
+
+/// `H - H N (N^T N)^-1 N^T` over every column (left as it is when `N^T N` is singular), by
+/// nalgebra products: the path for more than 3 directions.
 fn project_out_dense(h: &DMatrix<f64>, n: &DMatrix<f64>) -> DMatrix<f64> {
     let gram = n.transpose() * n;
     match gram.try_inverse() {
@@ -122,7 +159,7 @@ mod tests {
     /// The closed-form projection equals the dense one, and observes nothing along `n`.
     #[test]
     fn project_out_matches_the_dense_products() {
-        let h = DMatrix::from_fn(2, 5, |i, j| ((i * 5 + j) as f64 * 0.7).sin());
+        let h = DMatrix::from_fn(2, 5, |i, j| ((i * 5 + j) as f64 * 0.7).sin() + 1.5);
         let n = DMatrix::from_fn(5, 3, |i, j| ((i * 3 + j) as f64 * 1.3).cos() + i as f64);
         let fast = project_out(&h, &n);
         let dense = project_out_dense(&h, &n);
@@ -130,5 +167,26 @@ mod tests {
         assert!((&fast * &n).amax() < 1e-12);
         let singular = DMatrix::zeros(5, 3);
         assert_eq!(project_out(&h, &singular), h);
+    }
+
+    /// A column the measurement does not depend on stays zero (the row's support is
+    /// projected alone), and the result still observes nothing along `n`.
+    #[test]
+    fn project_out_keeps_the_columns_outside_the_support_at_zero() {
+        let mut h = DMatrix::from_fn(2, 6, |i, j| ((i * 6 + j) as f64 * 0.7).sin() + 1.5);
+        h.column_mut(4).fill(0.0);
+        h[(1, 5)] = 1e-17;
+        let n = DMatrix::from_fn(6, 3, |i, j| {
+            ((i * i + 3 * j) as f64 * 0.9).cos() * (1 + i) as f64
+        });
+        let projected = project_out(&h, &n);
+        assert_eq!(projected.column(4).amax(), 0.0);
+        assert_eq!(projected[(1, 5)], 1e-17);
+        // The support observes the generators before the projection.
+        assert!((h.columns(0, 4) * n.rows(0, 4)).amax() > 1.0);
+        let observed = &projected * &n;
+        assert!(observed.amax() < 1e-9, "{observed}");
+        // Over all columns, the zero column would take weight.
+        assert!(project_out_dense(&h, &n).column(4).amax() > 1e-3);
     }
 }

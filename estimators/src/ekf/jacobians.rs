@@ -58,23 +58,22 @@ pub(super) fn project_out_in_place(h: &mut DMatrix<f64>, n: DMatrixView<'_, f64>
         *h = project_out_dense(h, &n.clone_owned());
         return;
     }
+    // The Gram matrix's pseudo-inverse over every column, shared by the rows that depend on
+    // every column (a point's or a line's measurement).
+    let mut full_inverse = None;
     for i in 0..h.nrows() {
         let scale = h.row(i).amax();
         let in_support = |value: f64| value.abs() > SUPPORT_TOLERANCE * scale;
-        let mut gram = Matrix3::<f64>::zeros();
-        for k in (0..h.ncols()).filter(|&k| in_support(h[(i, k)])) {
-            for a in 0..n.ncols() {
-                for b in 0..n.ncols() {
-                    gram[(a, b)] += n[(k, a)] * n[(k, b)];
-                }
-            }
-        }
-        // Row i of H N.
+        let inverse = if h.row(i).iter().all(|&value| in_support(value)) {
+            *full_inverse.get_or_insert_with(|| gram_pseudo_inverse(&n, |_| true))
+        } else {
+            gram_pseudo_inverse(&n, |k| in_support(h[(i, k)]))
+        };
+        // Row i of H N (N_s^T N_s)^+.
         let mut row = [0.0; 3];
         for (a, value) in row.iter_mut().enumerate().take(n.ncols()) {
             *value = (0..h.ncols()).map(|k| h[(i, k)] * n[(k, a)]).sum();
         }
-        let inverse = symmetric_pseudo_inverse(gram);
         let mut hn = [0.0; 3];
         for (b, value) in hn.iter_mut().enumerate() {
             *value = (0..3).map(|a| row[a] * inverse[(a, b)]).sum();
@@ -87,9 +86,35 @@ pub(super) fn project_out_in_place(h: &mut DMatrix<f64>, n: DMatrixView<'_, f64>
     }
 }
 
+/// `(N_s^T N_s)^+` for the rows `k` of `n` (at most 3 columns) with `in_support(k)`.
+fn gram_pseudo_inverse(
+    n: &DMatrixView<'_, f64>,
+    in_support: impl Fn(usize) -> bool,
+) -> Matrix3<f64> {
+    let mut gram = Matrix3::<f64>::zeros();
+    for k in (0..n.nrows()).filter(|&k| in_support(k)) {
+        for a in 0..n.ncols() {
+            for b in 0..n.ncols() {
+                gram[(a, b)] += n[(k, a)] * n[(k, b)];
+            }
+        }
+    }
+    symmetric_pseudo_inverse(gram)
+}
+
 /// `(V L V^T)^+ = V L^+ V^T` of a symmetric positive semi-definite 3 x 3 matrix, eigenvalues
-/// below [`PSEUDO_INVERSE_TOLERANCE`] times the largest counting as zero.
+/// below [`PSEUDO_INVERSE_TOLERANCE`] times the largest counting as zero; the closed-form
+/// inverse when the determinant says no eigenvalue is that small (the usual case: a support
+/// that holds the pose).
 fn symmetric_pseudo_inverse(gram: Matrix3<f64>) -> Matrix3<f64> {
+    let mean_eigenvalue = gram.trace() / 3.0;
+    // Every eigenvalue is at most the trace, so a determinant above this bounds the smallest
+    // from below by the tolerance times the mean.
+    let well_conditioned = gram.determinant()
+        > PSEUDO_INVERSE_TOLERANCE * mean_eigenvalue * (3.0 * mean_eigenvalue).powi(2);
+    if let Some(inverse) = gram.try_inverse().filter(|_| well_conditioned) {
+        return inverse;
+    }
     let eigen = gram.symmetric_eigen();
     let largest = eigen.eigenvalues.amax();
     let mut inverse = Matrix3::zeros();

@@ -13,6 +13,7 @@
 # The noisy logs are written once into OUT_DIR/logs by ../shared/peers/noisy_carmen.py (5 % of
 # distance + 5 mm, 5 % of turn + 0.02 rad/m + 0.002 rad); the corrected logs are read from
 # SLAM_DATA_DIR or ../shared/datasets. Each run's outputs stay in OUT_DIR/LOG-SEED.
+# scripts/compare-buildings.py compares two such tables (two binaries or configs) file by file.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 bin=$(realpath "$1"); config=$(realpath "$2"); out=$(realpath -m "$3")

@@ -101,11 +101,12 @@ pub struct EkfParams {
     /// the merge test's covariance and to the merge constraint's noise. Default 0.
     pub merge_tolerance: f64,
     /// Observability-constrained updates (Huang, Mourikis & Roumeliotis, "Observability-based
-    /// rules for designing consistent EKF SLAM estimators", IJRR 2010): each measurement
-    /// Jacobian is projected so that it cannot observe a world translation or rotation, and
-    /// the pose transition is the closest one that carries those directions from one
-    /// predicted pose to the next. Without it the EKF gains spurious information about the
-    /// absolute heading and becomes overconfident.
+    /// rules for designing consistent EKF SLAM estimators", IJRR 2010): each row of a
+    /// measurement Jacobian is projected, over the state rows it depends on, so that it
+    /// cannot observe a world translation or rotation, and the pose transition is the
+    /// closest one that carries those directions from one predicted pose to the next.
+    /// Without it the EKF gains spurious information about the absolute heading and becomes
+    /// overconfident.
     pub observability_constraint: bool,
     /// A confirmed feature seen again before the robot has moved `reupdate_distance` (m) or
     /// turned `reupdate_angle` (rad) since its last update is not updated with (the

@@ -144,6 +144,8 @@ pub struct RevisitFigures {
 pub struct LaserOdometryReportView {
     /// Scans whose preceding odometry was replaced by a match.
     pub matched: usize,
+    /// Of those, matches found by a retry's wider starting headings (a poor first match).
+    pub retried: usize,
     /// Scans whose match was refused (their odometry was kept).
     pub refused: usize,
     /// Ground-truth or reference poses between scans, left out of the evaluation (the
@@ -155,6 +157,7 @@ impl From<&LaserOdometryReport> for LaserOdometryReportView {
     fn from(report: &LaserOdometryReport) -> Self {
         LaserOdometryReportView {
             matched: report.matched,
+            retried: report.retried,
             refused: report.refused,
             truth_between_scans: report.truth_between_scans,
         }

@@ -93,6 +93,13 @@ pub struct LaserOdometryParams {
     pub heading_starts: usize,
     /// ... this far apart, degrees; the match is the lowest of the minima reached.
     pub heading_start_step_deg: f64,
+    /// When the best match pairs fewer than half of the scan's points (the odometry's
+    /// heading was further off than the starts reach, as after a fast spin on the spot), the
+    /// starts go on outwards, up to this many on each side in all (still within three
+    /// standard deviations of the odometry's heading), and the lowest minimum of all wins;
+    /// 0 (the default): no retry. A well-paired match never retries, so the cost is paid
+    /// only where a match is poor.
+    pub retry_heading_starts: usize,
     /// The odometry's noise over one scan interval, applied to the compound of the motions
     /// between two scans (as MRPT's CARMEN import does); unset (the default): the compound
     /// of the motions' own covariances. A log that records odometry 15 times per scan (the
@@ -119,6 +126,7 @@ impl Default for LaserOdometryParams {
             normal_reach_per_metre: 0.0,
             heading_starts: 0,
             heading_start_step_deg: 2.0,
+            retry_heading_starts: 0,
             interval_noise: None,
         }
     }
@@ -187,6 +195,9 @@ pub struct ScanMatch {
     pub covariance: Matrix3<f64>,
     /// Points paired at the last iteration.
     pub matched: usize,
+    /// Whether the match came from the starts beyond `heading_starts` that a poor match
+    /// tries ([`LaserOdometryParams::retry_heading_starts`]).
+    pub retried: bool,
 }
 
 /// What [`laser_odometry`] did (or a [`laser_odometry_stream`] has done so far).
@@ -194,6 +205,9 @@ pub struct ScanMatch {
 pub struct LaserOdometryReport {
     /// Scans whose preceding odometry was replaced by a match.
     pub matched: usize,
+    /// Of those, matches found by the wider starts of a retry
+    /// ([`LaserOdometryParams::retry_heading_starts`]).
+    pub retried: usize,
     /// Scans whose match was refused; their odometry was kept.
     pub refused: usize,
     /// Ground-truth or reference poses left out because they fall between two scans: the
@@ -207,19 +221,25 @@ pub struct LaserOdometryReport {
 ///
 /// ```
 /// use slam_sensors::laser_odometry::LaserOdometryReport;
-/// let report = LaserOdometryReport { matched: 5, refused: 1, truth_between_scans: 0 };
+/// let report = LaserOdometryReport { matched: 5, retried: 0, refused: 1, truth_between_scans: 0 };
 /// assert_eq!(
 ///     report.to_string(),
 ///     "laser odometry: 5 scans matched, 1 matches refused (odometry kept)"
 /// );
+/// let report = LaserOdometryReport { retried: 2, ..report };
+/// assert_eq!(
+///     report.to_string(),
+///     "laser odometry: 5 scans matched (2 from wider starting headings), 1 matches refused \
+///      (odometry kept)"
+/// );
 /// ```
 impl std::fmt::Display for LaserOdometryReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "laser odometry: {} scans matched, {} matches refused (odometry kept)",
-            self.matched, self.refused
-        )?;
+        write!(f, "laser odometry: {} scans matched", self.matched)?;
+        if self.retried > 0 {
+            write!(f, " ({} from wider starting headings)", self.retried)?;
+        }
+        write!(f, ", {} matches refused (odometry kept)", self.refused)?;
         match self.truth_between_scans {
             0 => Ok(()),
             n => write!(
@@ -484,7 +504,9 @@ pub fn match_scans(
 /// turned by `±k * heading_start_step_deg` (k = 1..=K: the turns within three standard
 /// deviations of the guess's heading, at most `heading_starts`), and the lowest
 /// minimum wins: a large turn whose odometry heading is a few degrees off no longer ends in a
-/// nearby local minimum.
+/// nearby local minimum. A match that pairs fewer than half of `current`'s points (or none)
+/// tries the starts beyond those, out to `retry_heading_starts` (within the same three
+/// standard deviations), and the lowest minimum of all wins.
 fn match_to_points(
     reference: &Grid,
     current: &[Vector2<f64>],
@@ -512,34 +534,21 @@ fn match_to_points(
     };
     let step = params.heading_start_step_deg.to_radians();
     let heading_sigma = guess_covariance[(2, 2)].max(0.0).sqrt();
-    let starts = params
-        .heading_starts
-        .min((3.0 * heading_sigma / step).floor() as usize);
-    // Every start runs until the gate has narrowed to its final width; the best one by the
-    // objective there goes on to convergence.
-    let mut best: Option<Minimum> = None;
-    for k in 0..=starts {
-        for sign in if k == 0 { &[1.0][..] } else { &[1.0, -1.0][..] } {
-            let start = Pose2::new(guess.x, guess.y, guess.theta + sign * k as f64 * step);
-            let iterations = if starts == 0 {
-                params.iterations
-            } else {
-                params.iterations.min(SCREENING_ITERATIONS)
-            };
-            if let Some(minimum) = problem.minimise(start, 0, iterations)
-                && best.as_ref().is_none_or(|b| minimum.cost < b.cost)
-            {
-                best = Some(minimum);
-            }
-        }
-    }
-    if starts > 0 && params.iterations > SCREENING_ITERATIONS {
-        best = match best {
-            Some(screened) => {
-                problem.minimise(screened.pose, SCREENING_ITERATIONS, params.iterations)
-            }
-            None => None,
-        };
+    let reach = (3.0 * heading_sigma / step).floor() as usize;
+    let starts = params.heading_starts.min(reach);
+    let mut best = problem.lowest_minimum(0..=starts, step);
+    // A match that pairs fewer than half of the scan's points began too far from the truth
+    // (the odometry's heading further off than the starts reach): the starts go on outwards.
+    let mut retried = false;
+    let retry_starts = params.retry_heading_starts.min(reach);
+    let poor = best.as_ref().is_none_or(|b| 2 * b.matched < current.len());
+    if poor
+        && retry_starts > starts
+        && let Some(wider) = problem.lowest_minimum(starts + 1..=retry_starts, step)
+        && best.as_ref().is_none_or(|b| wider.cost < b.cost)
+    {
+        best = Some(wider);
+        retried = true;
     }
     let Some(best) = best else {
         return Ok(None);
@@ -551,6 +560,7 @@ fn match_to_points(
         reference_from_current: best.pose,
         covariance: (covariance + covariance.transpose()) * 0.5,
         matched: best.matched,
+        retried,
     }))
 }
 
@@ -581,6 +591,36 @@ struct Minimum {
 }
 
 impl<'a> MatchProblem<'a> {
+    /// The lowest minimum from the guess turned by `k` start steps, for each `k` in `ks`, on
+    /// both sides (`k = 0`: the guess itself). A single start (the guess alone) runs all the
+    /// iterations; otherwise every start runs until the gate has narrowed to its final width,
+    /// and the best one by the objective there goes on to convergence.
+    fn lowest_minimum(&self, ks: std::ops::RangeInclusive<usize>, step: f64) -> Option<Minimum> {
+        let iterations = self.params.iterations;
+        let single = *ks.start() == 0 && *ks.end() == 0;
+        let screening = if single {
+            iterations
+        } else {
+            iterations.min(SCREENING_ITERATIONS)
+        };
+        let mut best: Option<Minimum> = None;
+        for k in ks {
+            for sign in if k == 0 { &[1.0][..] } else { &[1.0, -1.0][..] } {
+                let g = self.guess;
+                let start = Pose2::new(g.x, g.y, g.theta + sign * k as f64 * step);
+                if let Some(minimum) = self.minimise(start, 0, screening)
+                    && best.as_ref().is_none_or(|b| minimum.cost < b.cost)
+                {
+                    best = Some(minimum);
+                }
+            }
+        }
+        if single || iterations <= SCREENING_ITERATIONS {
+            return best;
+        }
+        best.and_then(|screened| self.minimise(screened.pose, SCREENING_ITERATIONS, iterations))
+    }
+
     /// Gauss-Newton from `start`, iterations `first..end`: the gate narrows from 4 to 1
     /// times `params.gate` over the first three.
     fn minimise(&self, start: Pose2, first: usize, end: usize) -> Option<Minimum> {
@@ -721,6 +761,7 @@ pub fn laser_odometry(
 #[derive(Clone, Debug, Default)]
 pub struct LaserOdometryCounts {
     matched: Arc<AtomicUsize>,
+    retried: Arc<AtomicUsize>,
     refused: Arc<AtomicUsize>,
     truth_between_scans: Arc<AtomicUsize>,
 }
@@ -730,6 +771,7 @@ impl LaserOdometryCounts {
     pub fn report(&self) -> LaserOdometryReport {
         LaserOdometryReport {
             matched: self.matched.load(Ordering::Relaxed),
+            retried: self.retried.load(Ordering::Relaxed),
             refused: self.refused.load(Ordering::Relaxed),
             truth_between_scans: self.truth_between_scans.load(Ordering::Relaxed),
         }
@@ -929,13 +971,16 @@ impl Matcher {
         };
         let (odometry, odometry_covariance) = interval_odometry(&self.pending, params)?;
         match match_to_local_map(chain, points, &odometry, &odometry_covariance, params)? {
-            Some((increment, chain_from_current)) => {
+            Some((increment, chain_from_current, retried)) => {
                 out.push_back(TimedEvent {
                     time,
                     event: Event::Motion(Box::new(increment)),
                 });
                 release_truth_at(&mut self.pending, &self.counts, time, out);
                 self.counts.matched.fetch_add(1, Ordering::Relaxed);
+                if retried {
+                    self.counts.retried.fetch_add(1, Ordering::Relaxed);
+                }
                 chain.chain_from_previous = chain_from_current;
                 if chain.is_key(&chain_from_current, params) {
                     chain.add_key_scan(chain_from_current, points, params);
@@ -1017,7 +1062,7 @@ fn match_to_local_map(
     odometry: &Pose2,
     odometry_covariance: &Matrix3<f64>,
     params: &LaserOdometryParams,
-) -> Result<Option<(PoseIncrement, Pose2)>> {
+) -> Result<Option<(PoseIncrement, Pose2, bool)>> {
     let robot_from_sensor = chain.robot_from_sensor;
     let odometry = *odometry;
     let odometry_covariance = *odometry_covariance;
@@ -1059,6 +1104,7 @@ fn match_to_local_map(
     Ok(Some((
         PoseIncrement::new(increment, covariance)?,
         chain_from_current,
+        matched.retried,
     )))
 }
 

@@ -506,6 +506,7 @@ fn laser_odometry_streams_the_events_of_the_in_memory_version() {
         "182 b4738ad0ba391339",
         LaserOdometryReport {
             matched: 59,
+            retried: 0,
             refused: 0,
             truth_between_scans: 59,
         },
@@ -525,6 +526,7 @@ fn laser_odometry_streams_the_events_of_the_in_memory_version_on_the_intel_log()
         "662 dcade4aeb0a2d9a6",
         LaserOdometryReport {
             matched: 83,
+            retried: 0,
             refused: 11,
             truth_between_scans: 0,
         },

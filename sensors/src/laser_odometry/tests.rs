@@ -352,6 +352,51 @@ fn extra_starting_headings_recover_a_large_heading_error() {
     assert!((several.translation() - truth.translation()).norm() < 5e-3);
 }
 
+/// A match that pairs fewer than half of the scan's points retries from starting headings
+/// beyond `heading_starts`: with the odometry's heading 16 degrees off and starts reaching 4
+/// degrees, the first match lands in a poor minimum, and the retry (starts out to 20
+/// degrees) finds the truth; a well-paired match does not retry.
+/// A match that pairs fewer than half of the scan's points retries from starting headings
+/// beyond `heading_starts`. With the odometry's heading 40 degrees off and starts reaching 4
+/// degrees, the first match lands 45 degrees off with 34 of 180 points paired (or, on the
+/// other side, is refused), and the retry (starts out to 40 degrees) finds the truth; a
+/// well-paired match does not retry.
+#[test]
+fn a_poor_match_retries_from_wider_starting_headings() {
+    let before = Pose2::new(2.0, 3.0, 0.1);
+    let after = Pose2::new(2.6, 3.2, 0.5);
+    let truth = before.between(&after);
+    let prior = Matrix3::from_diagonal(&Vector3::new(0.04, 0.04, 0.6f64.powi(2)));
+    let run = |offset_deg: f64, retry_heading_starts: usize| {
+        let params = LaserOdometryParams {
+            heading_starts: 2,
+            retry_heading_starts,
+            ..LaserOdometryParams::default()
+        };
+        let guess = Pose2::new(truth.x, truth.y, truth.theta + offset_deg.to_radians());
+        match_scans(&scan(&before), &scan(&after), &guess, &prior, &params).unwrap()
+    };
+    let error = |m: &ScanMatch| {
+        wrap_angle(m.reference_from_current.theta - truth.theta)
+            .abs()
+            .to_degrees()
+    };
+    let poor = run(-40.0, 0).unwrap();
+    assert!(error(&poor) > 10.0, "{poor:?} vs {truth:?}");
+    assert!(2 * poor.matched < 180 && !poor.retried, "{poor:?}");
+    assert_eq!(run(40.0, 0), None);
+    for offset_deg in [-40.0, 40.0] {
+        let retried = run(offset_deg, 20).unwrap();
+        assert!(retried.retried);
+        assert!(error(&retried) < 0.1, "{retried:?} vs {truth:?}");
+        assert!(2 * retried.matched >= 180, "{retried:?}");
+    }
+    // Near the truth the first match pairs most points: no retry, the same match.
+    let near = run(3.0, 20).unwrap();
+    assert!(!near.retried);
+    assert_eq!(Some(near), run(3.0, 0));
+}
+
 /// With the normal check on, the known motion is still recovered, and points pair only with
 /// reference points on surfaces facing their own way: a scan matched to itself turned by 90
 /// degrees (every wall then faces across its partner) pairs fewer points than without it.

@@ -146,6 +146,8 @@ pub struct LaserOdometryReportView {
     pub matched: usize,
     /// Of those, matches found by a retry's wider starting headings (a poor first match).
     pub retried: usize,
+    /// Of those, matches with another minimum nearly as low (their covariance widened).
+    pub ambiguous: usize,
     /// Scans whose match was refused (their odometry was kept).
     pub refused: usize,
     /// Ground-truth or reference poses between scans, left out of the evaluation (the
@@ -158,6 +160,7 @@ impl From<&LaserOdometryReport> for LaserOdometryReportView {
         LaserOdometryReportView {
             matched: report.matched,
             retried: report.retried,
+            ambiguous: report.ambiguous,
             refused: report.refused,
             truth_between_scans: report.truth_between_scans,
         }

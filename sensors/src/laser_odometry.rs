@@ -100,6 +100,12 @@ pub struct LaserOdometryParams {
     /// 0 (the default): no retry. A well-paired match never retries, so the cost is paid
     /// only where a match is poor.
     pub retry_heading_starts: usize,
+    /// With starting headings tried: a minimum more than one start step in heading from the
+    /// best one whose objective (a negative log-likelihood) is within this of the best's
+    /// makes the match ambiguous. Its covariance then grows by the outer product of that
+    /// minimum's offset from the best, so that the filter, with its map, decides between
+    /// the two turns instead of taking the scans' choice as sure. 0 (the default): off.
+    pub ambiguity_gap: f64,
     /// The odometry's noise over one scan interval, applied to the compound of the motions
     /// between two scans (as MRPT's CARMEN import does); unset (the default): the compound
     /// of the motions' own covariances. A log that records odometry 15 times per scan (the
@@ -127,6 +133,7 @@ impl Default for LaserOdometryParams {
             heading_starts: 0,
             heading_start_step_deg: 2.0,
             retry_heading_starts: 0,
+            ambiguity_gap: 0.0,
             interval_noise: None,
         }
     }
@@ -158,6 +165,10 @@ impl LaserOdometryParams {
             (
                 positive(self.heading_start_step_deg),
                 "heading_start_step_deg > 0",
+            ),
+            (
+                self.ambiguity_gap.is_finite() && self.ambiguity_gap >= 0.0,
+                "ambiguity_gap >= 0",
             ),
             (self.local_map_scans >= 1, "local_map_scans >= 1"),
             (
@@ -198,6 +209,9 @@ pub struct ScanMatch {
     /// Whether the match came from the starts beyond `heading_starts` that a poor match
     /// tries ([`LaserOdometryParams::retry_heading_starts`]).
     pub retried: bool,
+    /// Whether another minimum came nearly as low and widened the covariance
+    /// ([`LaserOdometryParams::ambiguity_gap`]).
+    pub ambiguous: bool,
 }
 
 /// What [`laser_odometry`] did (or a [`laser_odometry_stream`] has done so far).
@@ -208,6 +222,9 @@ pub struct LaserOdometryReport {
     /// Of those, matches found by the wider starts of a retry
     /// ([`LaserOdometryParams::retry_heading_starts`]).
     pub retried: usize,
+    /// Of those, matches with another minimum nearly as low, whose covariance was widened
+    /// ([`LaserOdometryParams::ambiguity_gap`]).
+    pub ambiguous: usize,
     /// Scans whose match was refused; their odometry was kept.
     pub refused: usize,
     /// Ground-truth or reference poses left out because they fall between two scans: the
@@ -221,23 +238,36 @@ pub struct LaserOdometryReport {
 ///
 /// ```
 /// use slam_sensors::laser_odometry::LaserOdometryReport;
-/// let report = LaserOdometryReport { matched: 5, retried: 0, refused: 1, truth_between_scans: 0 };
+/// let report = LaserOdometryReport {
+///     matched: 5,
+///     retried: 0,
+///     ambiguous: 0,
+///     refused: 1,
+///     truth_between_scans: 0,
+/// };
 /// assert_eq!(
 ///     report.to_string(),
 ///     "laser odometry: 5 scans matched, 1 matches refused (odometry kept)"
 /// );
-/// let report = LaserOdometryReport { retried: 2, ..report };
+/// let report = LaserOdometryReport { retried: 2, ambiguous: 1, ..report };
 /// assert_eq!(
 ///     report.to_string(),
-///     "laser odometry: 5 scans matched (2 from wider starting headings), 1 matches refused \
-///      (odometry kept)"
+///     "laser odometry: 5 scans matched (2 from wider starting headings, 1 ambiguous), 1 \
+///      matches refused (odometry kept)"
 /// );
 /// ```
 impl std::fmt::Display for LaserOdometryReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "laser odometry: {} scans matched", self.matched)?;
+        let mut notes = Vec::new();
         if self.retried > 0 {
-            write!(f, " ({} from wider starting headings)", self.retried)?;
+            notes.push(format!("{} from wider starting headings", self.retried));
+        }
+        if self.ambiguous > 0 {
+            notes.push(format!("{} ambiguous", self.ambiguous));
+        }
+        if !notes.is_empty() {
+            write!(f, " ({})", notes.join(", "))?;
         }
         write!(f, ", {} matches refused (odometry kept)", self.refused)?;
         match self.truth_between_scans {
@@ -536,7 +566,7 @@ fn match_to_points(
     let heading_sigma = guess_covariance[(2, 2)].max(0.0).sqrt();
     let reach = (3.0 * heading_sigma / step).floor() as usize;
     let starts = params.heading_starts.min(reach);
-    let mut best = problem.lowest_minimum(0..=starts, step);
+    let (mut best, screened) = problem.lowest_minimum(0..=starts, step);
     // A match that pairs fewer than half of the scan's points began too far from the truth
     // (the odometry's heading further off than the starts reach): the starts go on outwards.
     let mut retried = false;
@@ -544,7 +574,7 @@ fn match_to_points(
     let poor = best.as_ref().is_none_or(|b| 2 * b.matched < current.len());
     if poor
         && retry_starts > starts
-        && let Some(wider) = problem.lowest_minimum(starts + 1..=retry_starts, step)
+        && let (Some(wider), _) = problem.lowest_minimum(starts + 1..=retry_starts, step)
         && best.as_ref().is_none_or(|b| wider.cost < b.cost)
     {
         best = Some(wider);
@@ -553,14 +583,23 @@ fn match_to_points(
     let Some(best) = best else {
         return Ok(None);
     };
-    let Some(covariance) = best.information.try_inverse() else {
+    let Some(mut covariance) = best.information.try_inverse() else {
         return Ok(None);
     };
+    // Another minimum nearly as low: the scans cannot tell the two turns apart, so the match
+    // says so, and the filter's map decides.
+    let mut ambiguous = false;
+    if params.ambiguity_gap > 0.0 && starts > 0 {
+        let spread = problem.ambiguity(&best, screened, step, params.ambiguity_gap);
+        ambiguous = spread != Matrix3::zeros();
+        covariance += spread;
+    }
     Ok(Some(ScanMatch {
         reference_from_current: best.pose,
         covariance: (covariance + covariance.transpose()) * 0.5,
         matched: best.matched,
         retried,
+        ambiguous,
     }))
 }
 
@@ -582,6 +621,7 @@ struct MatchProblem<'a> {
 }
 
 /// A local minimum of a [`MatchProblem`].
+#[derive(Clone)]
 struct Minimum {
     pose: Pose2,
     information: Matrix3<f64>,
@@ -592,10 +632,15 @@ struct Minimum {
 
 impl<'a> MatchProblem<'a> {
     /// The lowest minimum from the guess turned by `k` start steps, for each `k` in `ks`, on
-    /// both sides (`k = 0`: the guess itself). A single start (the guess alone) runs all the
-    /// iterations; otherwise every start runs until the gate has narrowed to its final width,
-    /// and the best one by the objective there goes on to convergence.
-    fn lowest_minimum(&self, ks: std::ops::RangeInclusive<usize>, step: f64) -> Option<Minimum> {
+    /// both sides (`k = 0`: the guess itself), and every start's screened minimum. A single
+    /// start (the guess alone) runs all the iterations; otherwise every start runs until the
+    /// gate has narrowed to its final width, and the best one by the objective there goes on
+    /// to convergence.
+    fn lowest_minimum(
+        &self,
+        ks: std::ops::RangeInclusive<usize>,
+        step: f64,
+    ) -> (Option<Minimum>, Vec<Minimum>) {
         let iterations = self.params.iterations;
         let single = *ks.start() == 0 && *ks.end() == 0;
         let screening = if single {
@@ -603,22 +648,72 @@ impl<'a> MatchProblem<'a> {
         } else {
             iterations.min(SCREENING_ITERATIONS)
         };
-        let mut best: Option<Minimum> = None;
+        let mut screened: Vec<Minimum> = Vec::new();
         for k in ks {
             for sign in if k == 0 { &[1.0][..] } else { &[1.0, -1.0][..] } {
                 let g = self.guess;
                 let start = Pose2::new(g.x, g.y, g.theta + sign * k as f64 * step);
-                if let Some(minimum) = self.minimise(start, 0, screening)
-                    && best.as_ref().is_none_or(|b| minimum.cost < b.cost)
-                {
-                    best = Some(minimum);
-                }
+                screened.extend(self.minimise(start, 0, screening));
             }
         }
-        if single || iterations <= SCREENING_ITERATIONS {
-            return best;
+        // The first of equal objectives, as the starts' order gives them.
+        let lowest = screened
+            .iter()
+            .enumerate()
+            .fold(None, |lowest: Option<(usize, f64)>, (i, m)| match lowest {
+                Some((_, cost)) if cost <= m.cost => lowest,
+                _ => Some((i, m.cost)),
+            })
+            .map(|(i, _)| i);
+        let best = match lowest {
+            Some(i) if single || iterations <= SCREENING_ITERATIONS => Some(screened[i].clone()),
+            Some(i) => self.minimise(screened[i].pose, SCREENING_ITERATIONS, iterations),
+            None => None,
+        };
+        (best, screened)
+    }
+
+    /// The spread of the minima that compete with `best`: each screened minimum more than
+    /// `step` in heading from a lower one goes on to convergence, and each minimum reached
+    /// more than `step` from `best` with an objective within `gap` of `best`'s adds, once,
+    /// the outer product of its offset from `best` (as if it lay one standard deviation
+    /// away).
+    fn ambiguity(
+        &self,
+        best: &Minimum,
+        mut screened: Vec<Minimum>,
+        step: f64,
+        gap: f64,
+    ) -> Matrix3<f64> {
+        screened.sort_by(|a, b| a.cost.total_cmp(&b.cost));
+        let mut distinct: Vec<Pose2> = Vec::new();
+        for m in &screened {
+            if distinct
+                .iter()
+                .all(|d| wrap_angle(d.theta - m.pose.theta).abs() > step)
+            {
+                distinct.push(m.pose);
+            }
         }
-        best.and_then(|screened| self.minimise(screened.pose, SCREENING_ITERATIONS, iterations))
+        let mut spread = Matrix3::zeros();
+        let mut counted: Vec<f64> = Vec::new();
+        for start in distinct {
+            let Some(m) = self.minimise(start, SCREENING_ITERATIONS, self.params.iterations) else {
+                continue;
+            };
+            let offset = Vector3::new(
+                m.pose.x - best.pose.x,
+                m.pose.y - best.pose.y,
+                wrap_angle(m.pose.theta - best.pose.theta),
+            );
+            // Two starts that end in one minimum count it once.
+            let new = counted.iter().all(|&c| (c - offset.z).abs() > step);
+            if offset.z.abs() > step && m.cost < best.cost + gap && new {
+                counted.push(offset.z);
+                spread += offset * offset.transpose();
+            }
+        }
+        spread
     }
 
     /// Gauss-Newton from `start`, iterations `first..end`: the gate narrows from 4 to 1
@@ -762,6 +857,7 @@ pub fn laser_odometry(
 pub struct LaserOdometryCounts {
     matched: Arc<AtomicUsize>,
     retried: Arc<AtomicUsize>,
+    ambiguous: Arc<AtomicUsize>,
     refused: Arc<AtomicUsize>,
     truth_between_scans: Arc<AtomicUsize>,
 }
@@ -772,6 +868,7 @@ impl LaserOdometryCounts {
         LaserOdometryReport {
             matched: self.matched.load(Ordering::Relaxed),
             retried: self.retried.load(Ordering::Relaxed),
+            ambiguous: self.ambiguous.load(Ordering::Relaxed),
             refused: self.refused.load(Ordering::Relaxed),
             truth_between_scans: self.truth_between_scans.load(Ordering::Relaxed),
         }
@@ -971,15 +1068,18 @@ impl Matcher {
         };
         let (odometry, odometry_covariance) = interval_odometry(&self.pending, params)?;
         match match_to_local_map(chain, points, &odometry, &odometry_covariance, params)? {
-            Some((increment, chain_from_current, retried)) => {
+            Some((increment, chain_from_current, matched)) => {
                 out.push_back(TimedEvent {
                     time,
                     event: Event::Motion(Box::new(increment)),
                 });
                 release_truth_at(&mut self.pending, &self.counts, time, out);
                 self.counts.matched.fetch_add(1, Ordering::Relaxed);
-                if retried {
+                if matched.retried {
                     self.counts.retried.fetch_add(1, Ordering::Relaxed);
+                }
+                if matched.ambiguous {
+                    self.counts.ambiguous.fetch_add(1, Ordering::Relaxed);
                 }
                 chain.chain_from_previous = chain_from_current;
                 if chain.is_key(&chain_from_current, params) {
@@ -1062,7 +1162,7 @@ fn match_to_local_map(
     odometry: &Pose2,
     odometry_covariance: &Matrix3<f64>,
     params: &LaserOdometryParams,
-) -> Result<Option<(PoseIncrement, Pose2, bool)>> {
+) -> Result<Option<(PoseIncrement, Pose2, ScanMatch)>> {
     let robot_from_sensor = chain.robot_from_sensor;
     let odometry = *odometry;
     let odometry_covariance = *odometry_covariance;
@@ -1104,7 +1204,7 @@ fn match_to_local_map(
     Ok(Some((
         PoseIncrement::new(increment, covariance)?,
         chain_from_current,
-        matched.retried,
+        matched,
     )))
 }
 

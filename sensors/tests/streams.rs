@@ -507,6 +507,7 @@ fn laser_odometry_streams_the_events_of_the_in_memory_version() {
         LaserOdometryReport {
             matched: 59,
             retried: 0,
+            ambiguous: 0,
             refused: 0,
             truth_between_scans: 59,
         },
@@ -527,6 +528,7 @@ fn laser_odometry_streams_the_events_of_the_in_memory_version_on_the_intel_log()
         LaserOdometryReport {
             matched: 83,
             retried: 0,
+            ambiguous: 0,
             refused: 11,
             truth_between_scans: 0,
         },

@@ -590,7 +590,8 @@ fn match_to_points(
     // says so, and the filter's map decides.
     let mut ambiguous = false;
     if params.ambiguity_gap > 0.0 && starts > 0 {
-        let spread = problem.ambiguity(&best, screened, step, params.ambiguity_gap);
+        // Unless the retry replaced it, `best` went on from the lowest screened minimum.
+        let spread = problem.ambiguity(&best, screened, !retried, step, params.ambiguity_gap);
         ambiguous = spread != Matrix3::zeros();
         covariance += spread;
     }
@@ -677,11 +678,13 @@ impl<'a> MatchProblem<'a> {
     /// `step` in heading from a lower one goes on to convergence, and each minimum reached
     /// more than `step` from `best` with an objective within `gap` of `best`'s adds, once,
     /// the outer product of its offset from `best` (as if it lay one standard deviation
-    /// away).
+    /// away). With `from_lowest`, `best` is the lowest screened minimum's convergence, which
+    /// is not run again.
     fn ambiguity(
         &self,
         best: &Minimum,
         mut screened: Vec<Minimum>,
+        from_lowest: bool,
         step: f64,
         gap: f64,
     ) -> Matrix3<f64> {
@@ -697,7 +700,7 @@ impl<'a> MatchProblem<'a> {
         }
         let mut spread = Matrix3::zeros();
         let mut counted: Vec<f64> = Vec::new();
-        for start in distinct {
+        for start in distinct.into_iter().skip(usize::from(from_lowest)) {
             let Some(m) = self.minimise(start, SCREENING_ITERATIONS, self.params.iterations) else {
                 continue;
             };

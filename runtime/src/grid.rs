@@ -94,8 +94,8 @@ impl OccupancyGrid {
     /// The world cell index of a point.
     fn cell_of(&self, p: &Vector2<f64>) -> (i64, i64) {
         (
-            (p.x / self.resolution).floor() as i64,
-            (p.y / self.resolution).floor() as i64,
+            slam_core::grid::floor_i64(p.x / self.resolution),
+            slam_core::grid::floor_i64(p.y / self.resolution),
         )
     }
 

@@ -466,7 +466,7 @@ impl Grid {
         accept: impl Fn(&Vector2<f64>) -> bool,
     ) -> Option<&(Vector2<f64>, Vector2<f64>)> {
         let (cx, cy) = grid::cell_of(z, self.cell);
-        let rings = (reach / self.cell).ceil() as i64;
+        let rings = grid::ceil_i64(reach / self.cell);
         let mut best: Option<(f64, usize)> = None;
         let visit = |x: i64, y: i64, best: &mut Option<(f64, usize)>| {
             let range = self.cell_range(x, y);

@@ -21,7 +21,37 @@ use nalgebra::Vector2;
 
 /// The cell of side `cell` that holds `p`: `(floor(x / cell), floor(y / cell))`.
 pub fn cell_of(p: &Vector2<f64>, cell: f64) -> (i64, i64) {
-    ((p.x / cell).floor() as i64, (p.y / cell).floor() as i64)
+    (floor_i64(p.x / cell), floor_i64(p.y / cell))
+}
+
+/// `v.floor() as i64`, bit for bit (saturating beyond the range of `i64`, 0 for NaN), without
+/// a call: at the x86-64 baseline target `f64::floor` is a library call, and the grid searches
+/// take a cell index per query.
+///
+/// ```
+/// use slam_core::grid::floor_i64;
+/// for v in [-2.5, -2.0, -0.5, -0.0, 0.0, 0.5, 2.0, 2.5, f64::NAN, -1e300, 1e300] {
+///     assert_eq!(floor_i64(v), v.floor() as i64);
+/// }
+/// ```
+#[inline]
+pub fn floor_i64(v: f64) -> i64 {
+    let truncated = v as i64;
+    truncated.saturating_sub(i64::from(truncated as f64 > v))
+}
+
+/// `v.ceil() as i64`, bit for bit, without a call (as [`floor_i64`]).
+///
+/// ```
+/// use slam_core::grid::ceil_i64;
+/// for v in [-2.5, -2.0, -0.5, -0.0, 0.0, 0.5, 2.0, 2.5, f64::NAN, -1e300, 1e300] {
+///     assert_eq!(ceil_i64(v), v.ceil() as i64);
+/// }
+/// ```
+#[inline]
+pub fn ceil_i64(v: f64) -> i64 {
+    let truncated = v as i64;
+    truncated.saturating_add(i64::from((truncated as f64) < v))
 }
 
 /// The cells at Chebyshev distance `ring` from `(cx, cy)`: `(cx, cy)` alone for ring 0;
@@ -61,6 +91,18 @@ pub fn clearance(p: &Vector2<f64>, cell: f64, centre: (i64, i64), ring: i64) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    proptest::proptest! {
+        /// The call-free floor and ceiling are `f64::floor` / `f64::ceil` cast to `i64`, over
+        /// every bit pattern (infinities, NaNs and values beyond `i64` included).
+        #[test]
+        fn floor_and_ceil_are_the_library_ones(bits in proptest::num::u64::ANY, small in -1e6f64..1e6) {
+            for v in [f64::from_bits(bits), small] {
+                proptest::prop_assert_eq!(floor_i64(v), v.floor() as i64);
+                proptest::prop_assert_eq!(ceil_i64(v), v.ceil() as i64);
+            }
+        }
+    }
 
     #[test]
     fn a_ring_lists_each_of_its_cells_once() {

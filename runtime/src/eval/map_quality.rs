@@ -320,7 +320,7 @@ impl<'a> SegmentGrid<'a> {
     /// A grid of `cell`-sized squares over `walls`.
     pub(crate) fn new(walls: &'a [(Vector2<f64>, Vector2<f64>)], cell: f64) -> Self {
         let mut cells: rustc_hash::FxHashMap<(i64, i64), Vec<usize>> = Default::default();
-        let key = |v: f64| (v / cell).floor() as i64;
+        let key = |v: f64| grid::floor_i64(v / cell);
         let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
         for (k, (a, b)) in walls.iter().enumerate() {
             let (x0, x1) = (key(a.x.min(b.x)), key(a.x.max(b.x)));
@@ -388,7 +388,7 @@ impl SegmentGrid<'_> {
     /// The wall nearest to `p` if it lies within `reach` (m), with its distance.
     pub(crate) fn nearest_within(&self, p: &Vector2<f64>, reach: f64) -> Option<(usize, f64)> {
         let centre = self.key(p);
-        let rings = (reach / self.cell).ceil() as i64 + 1;
+        let rings = grid::ceil_i64(reach / self.cell) + 1;
         let mut best: Option<(usize, f64)> = None;
         for ring in 0..=rings {
             for (x, y) in grid::ring_cells(centre.0, centre.1, ring) {

@@ -17,8 +17,8 @@
 
 use rustc_hash::FxHashMap;
 use serde::Serialize;
-use slam_core::Pose2;
 use slam_core::nalgebra::Vector2;
+use slam_core::{Pose2, grid};
 
 use super::{ScanSample, nearest_rank};
 
@@ -90,12 +90,7 @@ pub fn revisit_consistency(
             (*t == *time).then(|| (pose.transform_point(in_robot), travelled[k]))
         })
         .collect();
-    let cell = |p: &Vector2<f64>| {
-        (
-            (p.x / REVISIT_RADIUS_M).floor() as i64,
-            (p.y / REVISIT_RADIUS_M).floor() as i64,
-        )
-    };
+    let cell = |p: &Vector2<f64>| grid::cell_of(p, REVISIT_RADIUS_M);
     let mut grid: FxHashMap<(i64, i64), Vec<usize>> = FxHashMap::default();
     for (i, (p, _)) in placed.iter().enumerate() {
         grid.entry(cell(p)).or_default().push(i);

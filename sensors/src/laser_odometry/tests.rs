@@ -353,10 +353,6 @@ fn extra_starting_headings_recover_a_large_heading_error() {
 }
 
 /// A match that pairs fewer than half of the scan's points retries from starting headings
-/// beyond `heading_starts`: with the odometry's heading 16 degrees off and starts reaching 4
-/// degrees, the first match lands in a poor minimum, and the retry (starts out to 20
-/// degrees) finds the truth; a well-paired match does not retry.
-/// A match that pairs fewer than half of the scan's points retries from starting headings
 /// beyond `heading_starts`. With the odometry's heading 40 degrees off and starts reaching 4
 /// degrees, the first match lands 45 degrees off with 34 of 180 points paired (or, on the
 /// other side, is refused), and the retry (starts out to 40 degrees) finds the truth; a

@@ -676,12 +676,20 @@ impl StateCovariance {
         let kept_dense: Vec<usize> = (0..self.dense_dim())
             .filter(|&k| !is_dropped(self.dense_rows[k]))
             .collect();
-        let mut lower = Mat::zeros(kept_dense.len(), kept_dense.len());
+        // In place, in the storage's order (column-major): entry (a, b) of the kept block
+        // comes from (i, j) with i >= a and j >= b, which lies at or after it in storage and
+        // is read before anything is written there. The reserved capacity stays, so the
+        // dense block grows again without a new allocation.
+        let m = kept_dense.len();
         for (b, &j) in kept_dense.iter().enumerate() {
             for (a, &i) in kept_dense.iter().enumerate().skip(b) {
-                lower[(a, b)] = self.lower[(i.max(j), i.min(j))];
+                self.lower[(a, b)] = self.lower[(i, j)];
+            }
+            for a in 0..b {
+                self.lower[(a, b)] = 0.0;
             }
         }
+        self.lower.truncate(m, m);
         let mut slots: Vec<Slot> = kept.iter().map(|&i| self.slots[i]).collect();
         let mut dense_rows = Vec::with_capacity(kept_dense.len());
         for (new_dense, &k) in kept_dense.iter().enumerate() {
@@ -691,8 +699,6 @@ impl StateCovariance {
             slots[new_row] = Slot::Dense(new_dense);
             dense_rows.push(new_row);
         }
-        self.capacity = kept_dense.len();
-        self.lower = lower;
         self.slots = slots;
         self.dense_rows = dense_rows;
         self.generators = self.generators.select_rows(&kept);
@@ -865,6 +871,45 @@ mod tests {
         assert!((cov.get(6, 6) - sum_var).abs() < 1e-12);
         let cross_sum = before[(0, 1)] + before[(0, 4)];
         assert!((cov.get(0, 6) - cross_sum).abs() < 1e-12);
+    }
+
+    /// Compaction works in place and keeps the storage: the kept block is the old one's rows
+    /// and columns, nothing of the dropped rows shows through after the block grows again
+    /// into the same storage, and an update afterwards is the textbook one.
+    #[test]
+    fn compact_in_place_then_grow_again() {
+        let c = random_spd(10, 11);
+        let mut cov = from_dense(&c);
+        let dropped = [
+            false, false, false, true, false, true, true, false, false, true,
+        ];
+        let map = cov.compact(&dropped);
+        let kept: Vec<usize> = (0..10).filter(|&i| !dropped[i]).collect();
+        assert_eq!(map[4], Some(3));
+        let expected = c.select_rows(&kept).select_columns(&kept);
+        assert_eq!(cov.to_dense(), expected);
+        // Three rows back, correlated with the kept ones: the storage is reused.
+        let extra = random_spd(3, 12);
+        let cross = DMatrix::from_fn(3, 6, |i, j| 0.01 * (1 + i + 2 * j) as f64);
+        cov.append(&extra, Some(&cross), &DMatrix::zeros(3, 3));
+        let mut grown = DMatrix::zeros(9, 9);
+        grown.view_mut((0, 0), (6, 6)).copy_from(&expected);
+        grown.view_mut((6, 6), (3, 3)).copy_from(&extra);
+        grown.view_mut((6, 0), (3, 6)).copy_from(&cross);
+        grown.view_mut((0, 6), (6, 3)).copy_from(&cross.transpose());
+        assert_eq!(cov.to_dense(), grown);
+        let h = DMatrix::from_row_slice(1, 3, &[0.5, -1.0, 0.25]);
+        let r = DMatrix::from_element(1, 1, 0.04);
+        let eta = DVector::from_element(1, 0.1);
+        let dx = cov.update(&[0, 4, 7], &h, &r, &eta).unwrap();
+        let mut h_full = DMatrix::zeros(1, 9);
+        for (b, &j) in [0, 4, 7].iter().enumerate() {
+            h_full[(0, j)] = h[(0, b)];
+        }
+        let s = &h_full * &grown * h_full.transpose() + &r;
+        let k = &grown * h_full.transpose() * s.try_inverse().unwrap();
+        assert!((dx + &k * &eta).amax() < 1e-12);
+        assert!((cov.to_dense() - (&grown - &k * &h_full * &grown)).amax() < 1e-12);
     }
 
     #[test]

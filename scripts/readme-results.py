@@ -24,6 +24,7 @@ Rows (KEY: what it runs, roughly how long in release on the 2-core machine):
   carmen-walls       configs/carmen-walls.toml beside MRPT icp-slam and rbpf-slam on the four
                      Radish logs with noisy odometry, seeds 1-3 (bench-laser-vs-mrpt.sh), and
                      on the logs' own odometry                                      ~10 min
+                     (also writes WORK/carmen-walls-files.md: a table row per file)
 `--rows cheap` is ekf-builtin; `--rows all` (the default) is every row above.
 
 The rb2d and carmen-walls rows install MRPT (Debian mrpt-apps) when missing.
@@ -305,6 +306,33 @@ def spread(values, unit=significant):
 CARMEN_LOGS = (("intel", "Intel lab"), ("fhw", "fhw"), ("freiburg-079", "freiburg-079"), ("acapulco", "acapulco"))
 
 
+FILE_TABLE_HEAD = (
+    "| log | seed | odometry | ours: filter (relocalized) | icp-slam | rbpf-slam "
+    "| CPU s: ours / icp / rbpf | walls | length m | point to wall: filter / relocalized "
+    "| doubled (same side) |\n"
+    "|---|---|---|---|---|---|---|---|---|---|---|\n"
+)
+
+
+def file_row(log, seed, folder, lines, ates):
+    """One Markdown row of the per-file table: the peers' script's printed figures (SE(2)-aligned
+    ATE in m, CPU s) and ours' `metrics.json` map figures."""
+    printed = {}
+    for line in lines:
+        words = line.split()
+        if words and words[0] in ("odometry", "ours", "icp-slam", "rbpf-slam") and len(words) >= 6:
+            printed[words[0]] = words  # name, aligned, unaligned, anchored, wall s, CPU s, ...
+    quality = json.loads((folder / "ours" / "metrics.json").read_text())["map_quality"]
+    cpu = " / ".join(printed.get(name, ["?"] * 6)[5] for name in ("ours", "icp-slam", "rbpf-slam"))
+    return (
+        f"| {log} | {seed} | {float(printed['odometry'][1]):.3f} "
+        f"| **{ates['ours']:.3f}** ({ates['reloc']:.3f}) | {ates['icp-slam']:.3f} "
+        f"| {ates['rbpf-slam']:.3f} | {cpu} | {quality['walls']} | {quality['wall_length_m']:.0f} "
+        f"| {100 * quality['median_point_to_wall_m']:.1f} / {100 * ates['to_wall']:.1f} cm "
+        f"| {100 * quality['doubled_fraction']:.1f} % ({100 * quality['doubled_same_side_fraction']:.1f} %) |\n"
+    )
+
+
 def carmen_walls(work):
     """`configs/carmen-walls.toml` beside MRPT icp-slam and rbpf-slam on the noisy-odometry
     versions of the four Radish corrected logs, seeds 1-3, by the peers' script (one file per
@@ -337,6 +365,7 @@ def carmen_walls(work):
         reloc = json.loads((Path(folder) / "ours" / "relocalize" / "metrics.json").read_text())
         ates["reloc"] = reloc["ate_rmse_after_m"]
         ates["to_wall"] = reloc["median_point_to_wall_after_m"]
+        ates["file"] = file_row(log, seed, Path(folder), lines, ates)
         return log, ates
 
     jobs = [(log, seed) for log, _ in CARMEN_LOGS for seed in (1, 2, 3)]
@@ -349,6 +378,9 @@ def carmen_walls(work):
     def figures(log, key):
         return [a[key] for l, a in results if l == log and a[key] is not None]
 
+    table = work / "carmen-walls-files.md"
+    table.write_text(FILE_TABLE_HEAD + "".join(a["file"] for _, a in results))
+    print(f"carmen-walls: one row per file in {table}", file=sys.stderr)
     files = "; ".join(
         f"{label} {spread(figures(log, 'ours'))} ({spread(figures(log, 'reloc'))}) / "
         f"{spread(figures(log, 'icp-slam'))} / {spread(figures(log, 'rbpf-slam'))} m"

@@ -93,8 +93,9 @@ mod tests {
     use super::*;
 
     proptest::proptest! {
-        /// The call-free floor and ceiling are `f64::floor` / `f64::ceil` cast to `i64`, over
-        /// every bit pattern (infinities, NaNs and values beyond `i64` included).
+        /// The call-free floor and ceiling are `f64::floor` / `f64::ceil` cast to `i64`, on
+        /// random bit patterns (infinities, NaNs and values beyond `i64` among them) and on
+        /// small values.
         #[test]
         fn floor_and_ceil_are_the_library_ones(bits in proptest::num::u64::ANY, small in -1e6f64..1e6) {
             for v in [f64::from_bits(bits), small] {

@@ -202,15 +202,14 @@ def parts(args):
         "0-3 / 3-10 / 10-30 / 30+ cm | not on a run: 0-3 / 3-10 / 10-30 / 30+ cm |"
     )
     print("|---|---:|---:|---:|---|---|")
-    distance, _ = nearest_wall(points, walls)
-    parts_table(f"{len(walls)} as mapped", distance, straight)
+    mapped, _ = nearest_wall(points, walls)
+    parts_table(f"{len(walls)} as mapped", mapped, straight)
     moved = walls
     for k in range(args.refit):
         moved = refit(points, moved)
-        distance, _ = nearest_wall(points, moved)
-        parts_table(f"refitted {k + 1}x", distance, straight)
+        parts_table(f"refitted {k + 1}x", nearest_wall(points, moved)[0], straight)
     if args.png:
-        draw(args.png, points, straight, nearest_wall(points, walls)[0], walls)
+        draw(args.png, points, straight, mapped, walls)
 
 
 def draw(out, points, straight, distance, walls):
